@@ -1,0 +1,313 @@
+"""Baseline texture downsamplers of the evaluation protocol (PROTOCOL.md, protocol 1).
+
+A texture is an ``(H, W, C)`` uint8 array of stored (sRGB) values, row 0 at the top, ``C`` in
+1..4 (grey, grey+alpha, RGB, RGBA). Every method keeps the channel count and works on each
+channel independently, alpha included and never premultiplied, so colour under transparent
+texels survives. Each returns an ``(h, w, C)`` uint8 array with ``(h, w) = target_size(H, W,
+scale)``:
+
+- ``box``, ``bicubic``, ``lanczos``: Pillow's ``Image.BOX``, ``BICUBIC`` and ``LANCZOS``
+  resamplers on the texture as stored, as users resize textures today.
+- ``pbd``: Perceptually Based Downscaling (Oztireli and Gross 2015), closed form, 2 x 2
+  patches (see :func:`pbd`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import scipy.sparse as sp
+from PIL import Image
+
+from geoscaler.errors import GeoscalerError
+
+REFERENCE_MAX_SIZE = 2048
+"""Longer side above which an original is reduced before evaluation (the paper's setting)."""
+
+PBD_PATCH = 2
+"""Side of PBD's square patches, in low-resolution pixels."""
+PBD_MIN_VARIANCE = 1e-6
+"""Patch variance of the box-downscaled image (values in [0, 1]) below which PBD's
+contrast ratio is 0 and the patch contributes its plain mean."""
+
+__all__ = [
+    "BASELINES",
+    "bicubic",
+    "box",
+    "downsample_texture",
+    "lanczos",
+    "pbd",
+    "reference_texture",
+    "target_size",
+]
+
+
+def _round_ratio(numerator: int, denominator: int) -> int:
+    """``numerator / denominator`` rounded half up, in exact integer arithmetic."""
+    return (2 * numerator + denominator) // (2 * denominator)
+
+
+def target_size(height: int, width: int, scale: int) -> tuple[int, int]:
+    """Size of a texture downsampled by ``scale``: each side divided, rounded to whole texels.
+
+    ``h = round(height / scale)``, ``w = round(width / scale)``, halves rounded up
+    (1000 x 750 at 8 -> 125 x 94).
+
+    Args:
+        height, width: texture size in texels, >= 1.
+        scale: the reduction factor, a whole number >= 2 and at most ``min(height, width)``.
+
+    Returns:
+        ``(h, w)``, each >= 1.
+
+    Raises:
+        GeoscalerError: ``scale`` is not a whole number >= 2 (bools and floats such as 4.0
+            count as not whole numbers) or is larger than the texture's shorter side.
+    """
+    if isinstance(scale, bool) or not isinstance(scale, int | np.integer) or scale < 2:
+        raise GeoscalerError(
+            f"scale {scale!r}: must be a whole number >= 2 (e.g. 4 or 8), given as an integer"
+        )
+    if height < 1 or width < 1:
+        raise GeoscalerError(f"texture size {height} x {width}: both sides must be >= 1 texel")
+    if scale > min(height, width):
+        raise GeoscalerError(
+            f"scale {scale} is larger than the {height} x {width} texture: its shorter side "
+            f"would drop below 1 texel; use a scale of at most {min(height, width)}"
+        )
+    scale = int(scale)
+    return _round_ratio(height, scale), _round_ratio(width, scale)
+
+
+def _check_texture(texture: np.ndarray) -> None:
+    """Raise GeoscalerError unless ``texture`` is an ``(H, W, C)`` uint8 array, C in 1..4."""
+    if not isinstance(texture, np.ndarray) or texture.ndim != 3 or texture.dtype != np.uint8:
+        shape = getattr(texture, "shape", None)
+        dtype = getattr(texture, "dtype", type(texture).__name__)
+        raise GeoscalerError(
+            f"texture of shape {shape} and type {dtype}: expected an (H, W, C) uint8 array "
+            f"(8 bits per channel)"
+        )
+    if not 1 <= texture.shape[2] <= 4:
+        raise GeoscalerError(
+            f"texture with {texture.shape[2]} channels: expected 1 to 4 (grey, grey+alpha, "
+            f"RGB or RGBA)"
+        )
+
+
+def _pillow_resize(
+    texture: np.ndarray, size: tuple[int, int], resample: Image.Resampling
+) -> np.ndarray:
+    """Resize ``(H, W, C)`` uint8 to ``size = (h, w)`` with a Pillow filter, channel by channel.
+
+    Each channel is resampled as its own 8-bit 'L' image: for RGB this is bit-identical to
+    resizing the RGB image, and for alpha it avoids Pillow's RGBA path, which premultiplies
+    colour by alpha (and so loses colour under transparent texels).
+    """
+    h, w = size
+    channels = [
+        np.asarray(Image.fromarray(np.ascontiguousarray(texture[..., c])).resize((w, h), resample))
+        for c in range(texture.shape[2])
+    ]
+    return np.stack(channels, axis=-1)
+
+
+def _resample(texture: np.ndarray, scale: int, resample: Image.Resampling) -> np.ndarray:
+    """Validate, then resize ``texture`` to ``target_size`` with a Pillow filter."""
+    _check_texture(texture)
+    size = target_size(texture.shape[0], texture.shape[1], scale)
+    return _pillow_resize(texture, size, resample)
+
+
+def box(texture: np.ndarray, scale: int) -> np.ndarray:
+    """Area average (Pillow ``Image.BOX``): ``(H, W, C)`` uint8 -> ``(h, w, C)`` uint8.
+
+    For sides divisible by ``scale`` each output texel is the mean of its ``scale x scale``
+    block; otherwise Pillow averages the texels whose centres fall in the output texel's
+    footprint.
+    """
+    return _resample(texture, scale, Image.Resampling.BOX)
+
+
+def bicubic(texture: np.ndarray, scale: int) -> np.ndarray:
+    """Pillow ``Image.BICUBIC``: ``(H, W, C)`` uint8 -> ``(h, w, C)`` uint8."""
+    return _resample(texture, scale, Image.Resampling.BICUBIC)
+
+
+def lanczos(texture: np.ndarray, scale: int) -> np.ndarray:
+    """Pillow ``Image.LANCZOS``: ``(H, W, C)`` uint8 -> ``(h, w, C)`` uint8."""
+    return _resample(texture, scale, Image.Resampling.LANCZOS)
+
+
+def _box_weights(in_size: int, out_size: int) -> sp.csr_matrix:
+    """``(out_size, in_size)`` sparse matrix of Pillow's BOX filter weights along one axis.
+
+    Output texel ``j`` covers ``[j r, (j + 1) r)`` of the input, ``r = in_size / out_size``;
+    it averages, with equal weights, the input texels whose centres ``i + 0.5`` lie in
+    ``(j r, (j + 1) r]``, the texels Pillow's BOX filter weights. For a divisible size this is
+    the plain mean of the ``r`` texels of the block.
+    """
+    ratio = in_size / out_size
+    rows, cols = [], []
+    for j in range(out_size):
+        centre = (j + 0.5) * ratio
+        first = max(int(centre - 0.5 * ratio + 0.5), 0)
+        last = min(int(centre + 0.5 * ratio + 0.5), in_size)
+        inside = [i for i in range(first, last) if -0.5 < (i - centre + 0.5) / ratio <= 0.5]
+        rows += [j] * len(inside)
+        cols += inside
+    counts = np.bincount(rows, minlength=out_size).astype(np.float64)
+    weights = 1.0 / counts[rows]
+    return sp.csr_matrix((weights, (rows, cols)), shape=(out_size, in_size))
+
+
+def _box_float(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Box-downscale ``(H, W, C)`` float64 to ``(h, w, C)`` with Pillow's BOX weights, exactly.
+
+    Separable: ``out[:, :, c] = A_h @ image[:, :, c] @ A_w.T`` with the sparse
+    :func:`_box_weights` matrices, all channels at once, no 8-bit rounding.
+    """
+    height, width, channels = image.shape
+    h, w = size
+    rows = _box_weights(height, h) @ image.reshape(height, width * channels)
+    rows = rows.reshape(h, width, channels).transpose(1, 0, 2).reshape(width, h * channels)
+    cols = _box_weights(width, w) @ rows
+    return cols.reshape(w, h, channels).transpose(1, 0, 2)
+
+
+def _patch_mean(x: np.ndarray, patch: tuple[int, int]) -> np.ndarray:
+    """'Valid' correlation with the averaging patch: ``(h, w, C)`` -> ``(h-ph+1, w-pw+1, C)``."""
+    ph, pw = patch
+    h, w = x.shape[0] - ph + 1, x.shape[1] - pw + 1
+    return sum(x[dy : dy + h, dx : dx + w] for dy in range(ph) for dx in range(pw)) / (ph * pw)
+
+
+def _patch_sum_full(x: np.ndarray, patch: tuple[int, int]) -> np.ndarray:
+    """'Full' correlation with a patch of ones: ``(h-ph+1, w-pw+1, C)`` -> ``(h, w, C)``.
+
+    Output pixel ``(y, x)`` sums the values of every patch that covers low-res pixel
+    ``(y, x)``: the adjoint of :func:`_patch_mean` (up to its ``1 / (ph pw)``).
+    """
+    ph, pw = patch
+    padded = np.pad(x, ((ph - 1, ph - 1), (pw - 1, pw - 1), (0, 0)))
+    h, w = x.shape[0] + ph - 1, x.shape[1] + pw - 1
+    return sum(padded[dy : dy + h, dx : dx + w] for dy in range(ph) for dx in range(pw))
+
+
+def _pbd_float(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """PBD's closed form on ``(H, W, C)`` float64 values in [0, 1] -> ``(h, w, C)`` float64.
+
+    Algorithm 1 of the paper, per channel, patches ``p x p`` (``p = PBD_PATCH``, or the
+    output side when that is smaller)::
+
+        L  = box(H), L2 = box(H^2)                     # (h, w): mean and mean square
+        M  = mean_p(L)                                 # (h-p+1, w-p+1) patch means
+        Sl = mean_p(L^2) - M^2                         # patch variance of L
+        Sh = mean_p(L2) - M^2                          # variance of H within the patch
+        R  = sqrt(Sh / Sl) where Sl > 1e-6, else 0     # contrast ratio
+        D  = sum_k (M_k + R_k (L - M_k)) / count       # over the patches k covering a pixel
+
+    i.e. ``D = (full(M) + full(R) L - full(R M)) / full(1)`` with ``full`` the 'full'
+    correlation with a ``p x p`` patch of ones. Every patch of ``D`` then has the mean and
+    (for a single patch, exactly) the variance of the high-resolution texels it covers.
+    """
+    patch = (min(PBD_PATCH, size[0]), min(PBD_PATCH, size[1]))
+    low = _box_float(image, size)
+    low_sq = _box_float(image * image, size)
+    mean = _patch_mean(low, patch)
+    var_low = _patch_mean(low * low, patch) - mean * mean
+    var_high = np.maximum(_patch_mean(low_sq, patch) - mean * mean, 0.0)
+    ratio = np.zeros_like(mean)
+    flat = var_low <= PBD_MIN_VARIANCE
+    np.sqrt(var_high / np.where(flat, 1.0, var_low), out=ratio, where=~flat)
+    count = _patch_sum_full(np.ones_like(mean), patch)
+    total = (
+        _patch_sum_full(mean, patch)
+        + _patch_sum_full(ratio, patch) * low
+        - _patch_sum_full(ratio * mean, patch)
+    )
+    return total / count
+
+
+def pbd(texture: np.ndarray, scale: int) -> np.ndarray:
+    """Perceptually Based Downscaling: ``(H, W, C)`` uint8 -> ``(h, w, C)`` uint8.
+
+    A. C. Oztireli and M. Gross, "Perceptually Based Downscaling of Images", ACM Transactions
+    on Graphics 34(4), 2015: the closed form with 2 x 2 patches (:func:`_pbd_float`). Each
+    2 x 2 patch of the result keeps the mean and the local contrast (variance) of the texels
+    it replaces, so it is sharper than ``box``.
+
+    Works on the stored (sRGB) values like the other baselines, each channel (alpha included)
+    on its own, in float64 on values scaled to [0, 1]; the result is clipped to [0, 1] and
+    rounded half up to 8 bits.
+
+    Sizes that ``scale`` does not divide: ``L`` and ``L2`` are computed directly at
+    ``target_size`` with Pillow's BOX weights (:func:`_box_weights`, in float64), so ``L`` is
+    always the ``box`` baseline before its 8-bit rounding. As a consequence a constant
+    texture gives that constant, and a texture made of constant ``scale x scale`` blocks gives
+    exactly ``box``'s result.
+
+    Patent notice: PBD is covered by US patent 10,325,346. It is
+    provided only as a baseline for comparison; check the patent before using it in a
+    product.
+    """
+    _check_texture(texture)
+    size = target_size(texture.shape[0], texture.shape[1], scale)
+    result = _pbd_float(texture.astype(np.float64) / 255.0, size)
+    return np.floor(np.clip(result, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+BASELINES: dict[str, Callable[[np.ndarray, int], np.ndarray]] = {
+    "box": box,
+    "bicubic": bicubic,
+    "lanczos": lanczos,
+    "pbd": pbd,
+}
+"""Baseline name -> ``fn(texture, scale) -> downsampled texture``."""
+
+
+def downsample_texture(texture: np.ndarray, scale: int, method: str) -> np.ndarray:
+    """Downsample ``(H, W, C)`` uint8 by ``scale`` with the baseline ``method``.
+
+    Returns:
+        ``(h, w, C)`` uint8, ``(h, w) = target_size(H, W, scale)``.
+
+    Raises:
+        GeoscalerError: unknown ``method`` (the message lists the known ones), invalid
+            ``scale`` or texture.
+    """
+    if method not in BASELINES:
+        raise GeoscalerError(
+            f"unknown downsampling method {method!r}: choose one of {', '.join(BASELINES)}"
+        )
+    return BASELINES[method](texture, scale)
+
+
+def reference_texture(texture: np.ndarray, max_size: int = REFERENCE_MAX_SIZE) -> np.ndarray:
+    """The protocol's reference map: an original reduced to ``max_size`` on its longer side.
+
+    A texture whose longer side exceeds ``max_size`` is resized with Pillow ``LANCZOS``
+    (channel by channel, as the baselines) so that its longer side is ``max_size`` and its
+    shorter side ``round(short * max_size / long)`` (half up, at least 1): the aspect ratio
+    is kept. Any other texture is returned as is (the same array, not a copy).
+
+    Args:
+        texture: ``(H, W, C)`` uint8.
+        max_size: the longest side allowed, >= 1.
+
+    Returns:
+        ``(H', W', C)`` uint8 with ``max(H', W') <= max_size``.
+    """
+    _check_texture(texture)
+    if max_size < 1:
+        raise GeoscalerError(f"max_size {max_size}: must be at least 1 texel")
+    height, width = texture.shape[:2]
+    longer = max(height, width)
+    if longer <= max_size:
+        return texture
+    size = (
+        max(_round_ratio(height * max_size, longer), 1),
+        max(_round_ratio(width * max_size, longer), 1),
+    )
+    return _pillow_resize(texture, size, Image.Resampling.LANCZOS)

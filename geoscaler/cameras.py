@@ -1,0 +1,114 @@
+"""Cameras of PROTOCOL.md: one convention for the whole project (OpenGL, right-handed).
+
+A camera sits at ``distance * direction`` and looks at the origin (along ``-direction``) with a
+45-degree vertical field of view and a square image. Matrices are float64 numpy arrays that map
+column vectors (``clip = projection @ view @ [x, y, z, 1]``). In the image, row 0 is the top and
+pixel centres lie at half-integers, as GL rasterises.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+FOV_Y_DEGREES = 45.0
+VALIDATION_VIEWS = 60
+VALIDATION_DISTANCE = 2.4
+NEAR_DISTANCE = 1.5
+FAR_DISTANCE = 4.0
+TRAINING_DISTANCES = (1.8, 3.0)
+
+_POLE_COS = math.cos(math.radians(1.0))
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A protocol camera.
+
+    Attributes:
+        direction: ``(3,)`` unit vector from the origin towards the eye.
+        distance: eye distance from the origin, in normalised scene units.
+    """
+
+    direction: tuple[float, float, float]
+    distance: float
+
+    @property
+    def eye(self) -> np.ndarray:
+        """``(3,)`` float64 eye position."""
+        return self.distance * np.asarray(self.direction, dtype=np.float64)
+
+    def axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(right, up, back)`` unit vectors of the camera frame; the camera looks along -back."""
+        back = np.asarray(self.direction, dtype=np.float64)
+        world_up = np.array([0.0, 0.0, 1.0] if abs(back[1]) > _POLE_COS else [0.0, 1.0, 0.0])
+        right = np.cross(world_up, back)
+        right /= np.linalg.norm(right)
+        return right, np.cross(back, right), back
+
+    def view_matrix(self) -> np.ndarray:
+        """``(4, 4)`` world-to-eye transform."""
+        right, up, back = self.axes()
+        rotation = np.stack([right, up, back])
+        view = np.eye(4)
+        view[:3, :3] = rotation
+        view[:3, 3] = -rotation @ self.eye
+        return view
+
+    def near_far(self) -> tuple[float, float]:
+        """Clip planes: near ``max(0.5 (D - 1), 0.001)``, far ``D + 2``."""
+        return max(0.5 * (self.distance - 1.0), 0.001), self.distance + 2.0
+
+    def projection_matrix(self) -> np.ndarray:
+        """``(4, 4)`` OpenGL perspective projection (square image)."""
+        near, far = self.near_far()
+        f = 1.0 / math.tan(math.radians(FOV_Y_DEGREES) / 2)
+        return np.array(
+            [
+                [f, 0.0, 0.0, 0.0],
+                [0.0, f, 0.0, 0.0],
+                [0.0, 0.0, (far + near) / (near - far), 2 * far * near / (near - far)],
+                [0.0, 0.0, -1.0, 0.0],
+            ]
+        )
+
+    def clip_matrix(self) -> np.ndarray:
+        """``(4, 4)`` world-to-clip transform, ``projection @ view``."""
+        return self.projection_matrix() @ self.view_matrix()
+
+
+def _unit(vectors: np.ndarray) -> np.ndarray:
+    return vectors / np.linalg.norm(vectors, axis=-1, keepdims=True)
+
+
+def fibonacci_directions(count: int = VALIDATION_VIEWS) -> np.ndarray:
+    """``(count, 3)`` float64 unit directions of the protocol's Fibonacci sphere, view i = row i."""
+    i = np.arange(count, dtype=np.float64)
+    z = 1.0 - (2.0 * i + 1.0) / count
+    azimuth = i * math.pi * (3.0 - math.sqrt(5.0))
+    radius = np.sqrt(1.0 - z * z)
+    return np.stack([radius * np.cos(azimuth), radius * np.sin(azimuth), z], axis=1)
+
+
+def validation_cameras(distance: float = VALIDATION_DISTANCE) -> list[Camera]:
+    """Validation set Q (60 fixed views at 2.4), or the near/far robustness sets by distance."""
+    if not distance > 0:
+        raise ValueError(f"camera distance must be positive, got {distance}")
+    return [Camera(tuple(d), float(distance)) for d in fibonacci_directions()]
+
+
+def sample_training_cameras(
+    count: int,
+    seed: int,
+    distances: tuple[float, float] = TRAINING_DISTANCES,
+) -> list[Camera]:
+    """Range S: directions uniform on the sphere, distance uniform in ``distances``.
+
+    The same ``seed`` always gives the same cameras.
+    """
+    rng = np.random.default_rng(seed)
+    directions = _unit(rng.standard_normal((count, 3)))
+    lengths = rng.uniform(distances[0], distances[1], size=count)
+    return [Camera(tuple(d), float(r)) for d, r in zip(directions, lengths, strict=True)]

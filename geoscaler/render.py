@@ -1,0 +1,173 @@
+"""Images of a textured mesh from cached G-buffers, exactly as PROTOCOL.md defines them.
+
+The pipeline is deferred: :meth:`Renderer.rasterize` runs once per camera (visibility is fixed),
+then :meth:`Renderer.shade` interpolates UVs, takes their screen derivatives and filters the
+texture for every covered sample, and :meth:`Renderer.resolve` box-averages the 2 x 2 samples of
+each pixel. Shading and resolving are differentiable with respect to texels and UVs.
+
+Colours are linear light until :func:`geoscaler.texture.linear_to_srgb` encodes the final image.
+The background is black. Pixel colour = base-colour texture sample x base-colour factor (unlit).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from geoscaler.cameras import Camera
+from geoscaler.mesh import TexturedMesh
+from geoscaler.raster import GBuffer, rasterize
+from geoscaler.texture import MipTexture, UVFootprint, linear_to_srgb, texture_to_linear
+
+IMAGE_SIZE = 512
+SUPERSAMPLE = 2
+
+
+def default_device() -> torch.device:
+    """CUDA when torch sees a GPU, else the CPU."""
+    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+
+
+class Renderer:
+    """Renders one mesh, normalised per the protocol, from protocol cameras.
+
+    Args:
+        mesh: the mesh; its geometry is fixed for the renderer's lifetime.
+        device: where tensors live (default: CUDA when available).
+        image_size: output image side in pixels.
+        supersample: samples per pixel side (2 means 2 x 2 supersampling).
+    """
+
+    def __init__(
+        self,
+        mesh: TexturedMesh,
+        device: torch.device | str | None = None,
+        image_size: int = IMAGE_SIZE,
+        supersample: int = SUPERSAMPLE,
+    ):
+        self.device = torch.device(device) if device is not None else default_device()
+        self.image_size = image_size
+        self.supersample = supersample
+        self.mesh = mesh
+        to = {"device": self.device}
+        self.positions = torch.from_numpy(mesh.normalized_positions()).to(**to)
+        self.faces = torch.from_numpy(np.asarray(mesh.faces, dtype=np.int64)).to(**to)
+        self.faces_by_corner = self.faces.T.contiguous()  # (3, F)
+        self.uvs = torch.from_numpy(np.asarray(mesh.uvs, dtype=np.float32)).to(**to)
+        self.face_material = torch.from_numpy(np.asarray(mesh.face_material, np.int64)).to(**to)
+        factors = np.stack([m.base_color_factor[:3] for m in mesh.materials]).astype(np.float32)
+        self.factors = torch.from_numpy(factors).to(**to)
+
+    @property
+    def resolution(self) -> int:
+        """Samples per side of the G-buffer."""
+        return self.image_size * self.supersample
+
+    def reference_textures(self) -> list[MipTexture | None]:
+        """Mip chains of the mesh's own base-colour textures (None for untextured materials)."""
+        return [
+            None
+            if m.base_color_texture is None
+            else MipTexture(texture_to_linear(m.base_color_texture, self.device))
+            for m in self.mesh.materials
+        ]
+
+    def rasterize(self, camera: Camera) -> GBuffer:
+        """The G-buffer of one camera at ``resolution x resolution`` samples."""
+        clip_matrix = torch.from_numpy(camera.clip_matrix()).to(self.device, torch.float64)
+        homogeneous = torch.nn.functional.pad(self.positions.to(torch.float64), (0, 1), value=1.0)
+        return rasterize(homogeneous @ clip_matrix.T, self.faces, self.resolution)
+
+    def footprint(self, gbuffer: GBuffer, uvs: torch.Tensor | None = None) -> UVFootprint:
+        """Interpolated UVs and their screen derivatives at every covered sample.
+
+        Args:
+            gbuffer: visibility from :meth:`rasterize`.
+            uvs: ``(V, 2)`` UVs to use instead of the mesh's own (e.g. warped ones).
+        """
+        uvs = self.uvs if uvs is None else uvs
+        b, db_dx, db_dy = gbuffer.barycentrics()
+        corners = self.faces_by_corner.index_select(1, gbuffer.tri_ids)  # (3, N)
+        u = uvs[:, 0][corners]
+        v = uvs[:, 1][corners]
+        return UVFootprint(
+            u=(b * u).sum(0),
+            v=(b * v).sum(0),
+            du_dx=(db_dx * u).sum(0),
+            dv_dx=(db_dx * v).sum(0),
+            du_dy=(db_dy * u).sum(0),
+            dv_dy=(db_dy * v).sum(0),
+        )
+
+    def shade(
+        self,
+        gbuffer: GBuffer,
+        textures: Sequence[MipTexture | None],
+        uvs: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Linear colour of every covered sample.
+
+        Args:
+            gbuffer: visibility from :meth:`rasterize`.
+            textures: one mip chain per material (None: the factor alone is the colour).
+            uvs: ``(V, 2)`` UVs to use instead of the mesh's own (e.g. warped ones).
+
+        Returns:
+            ``(3, N)`` float32 linear RGB, in the order of ``gbuffer.pixels``.
+        """
+        footprint = self.footprint(gbuffer, uvs)
+        if len(textures) == 1:
+            colour = self.factors[0][:, None]
+            return colour * textures[0].sample(footprint) if textures[0] else colour.expand(3, -1)
+        material = self.face_material.index_select(0, gbuffer.tri_ids)
+        colours = self.factors.T.index_select(1, material)
+        for index, texture in enumerate(textures):
+            hit = torch.nonzero(material == index).squeeze(1)
+            if texture is not None and len(hit):
+                texel = texture.sample(UVFootprint(*(t[hit] for t in footprint)))
+                colours = colours.index_put((slice(None), hit), colours[:, hit] * texel)
+        return colours
+
+    def resolve(self, gbuffer: GBuffer, colours: torch.Tensor) -> torch.Tensor:
+        """Box-average the samples of each pixel (background black).
+
+        Args:
+            colours: ``(C, N)`` per-sample values in ``gbuffer.pixels`` order.
+
+        Returns:
+            ``(image_size, image_size, C)`` image.
+        """
+        channels = colours.shape[0]
+        grid = colours.new_zeros(channels, self.resolution**2)
+        grid = grid.index_copy(1, gbuffer.pixels.long(), colours)
+        side, ss = self.image_size, self.supersample
+        pixels = grid.view(channels, side, ss, side, ss).mean(dim=(2, 4))
+        return pixels.permute(1, 2, 0)
+
+    def _pixel_of_sample(self, gbuffer: GBuffer) -> torch.Tensor:
+        samples = gbuffer.pixels.long()
+        row = samples // self.resolution // self.supersample
+        col = samples % self.resolution // self.supersample
+        return row * self.image_size + col
+
+    def foreground(self, gbuffer: GBuffer) -> torch.Tensor:
+        """``(image_size, image_size)`` bool: pixels with any covered sample."""
+        mask = torch.zeros(self.image_size**2, dtype=torch.bool, device=self.device)
+        mask[self._pixel_of_sample(gbuffer)] = True
+        return mask.view(self.image_size, self.image_size)
+
+    def render(
+        self,
+        gbuffer: GBuffer,
+        textures: Sequence[MipTexture | None],
+        uvs: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """``(image_size, image_size, 3)`` sRGB-encoded image in [0, 1]."""
+        return linear_to_srgb(self.resolve(gbuffer, self.shade(gbuffer, textures, uvs)))
+
+
+def image_to_uint8(image: torch.Tensor) -> np.ndarray:
+    """``(H, W, C)`` sRGB float image in [0, 1] to uint8 for saving."""
+    return image.detach().clamp(0, 1).mul(255).round().to(torch.uint8).cpu().numpy()

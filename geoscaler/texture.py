@@ -1,0 +1,195 @@
+"""Texture filtering as a GPU does it for an sRGB base-colour map (PROTOCOL.md).
+
+Texels are decoded from 8-bit sRGB to linear light, a mip chain of 2 x 2 box averages is built
+in linear light, and samples are filtered trilinearly with an isotropic level of detail taken
+from the screen-space UV Jacobian, with repeat addressing and texel centres at (i + 0.5) / size.
+Everything is differentiable with respect to the texels and the UVs.
+
+Textures are ``(H, W, C)`` tensors, row 0 at the top of the image; UVs follow the OpenGL
+convention of :mod:`geoscaler.mesh` (``v = 0`` at the bottom row).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+
+def srgb_to_linear(x: torch.Tensor) -> torch.Tensor:
+    """Decode sRGB-encoded values in [0, 1] to linear light (IEC 61966-2-1), same shape."""
+    return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+
+
+def linear_to_srgb(x: torch.Tensor) -> torch.Tensor:
+    """Encode linear light to sRGB in [0, 1] (inputs clamped to [0, 1] first), same shape."""
+    x = x.clamp(0.0, 1.0)
+    # clamp_min keeps the unused branch's gradient finite at 0.
+    return torch.where(
+        x <= 0.0031308, x * 12.92, 1.055 * x.clamp_min(0.0031308) ** (1 / 2.4) - 0.055
+    )
+
+
+def texture_to_linear(texture: np.ndarray, device: torch.device | str = "cpu") -> torch.Tensor:
+    """``(H, W, C)`` uint8 sRGB texture to ``(H, W, 3)`` float32 linear RGB (alpha dropped).
+
+    Grayscale textures (C = 1 or 2) are broadcast to RGB.
+    """
+    if texture.ndim == 2:
+        texture = texture[..., None]
+    rgb = texture[..., :3] if texture.shape[2] >= 3 else np.repeat(texture[..., :1], 3, axis=2)
+    values = torch.from_numpy(np.ascontiguousarray(rgb)).to(device=device, dtype=torch.float32)
+    return srgb_to_linear(values / 255.0)
+
+
+def linear_to_texture(linear: torch.Tensor) -> np.ndarray:
+    """``(H, W, C)`` linear float texture to uint8 sRGB, as it would ship."""
+    encoded = linear_to_srgb(linear.detach()).mul(255.0).round()
+    return encoded.to(torch.uint8).cpu().numpy()
+
+
+def quantize_linear(linear: torch.Tensor) -> torch.Tensor:
+    """Round a linear texture to the nearest 8-bit sRGB value and decode it again."""
+    return srgb_to_linear(linear_to_srgb(linear).mul(255.0).round() / 255.0)
+
+
+def mip_sizes(height: int, width: int) -> list[tuple[int, int]]:
+    """Level sizes of the mip chain: halve (rounding down, at least 1) until 1 x 1."""
+    sizes = [(height, width)]
+    while sizes[-1] != (1, 1):
+        h, w = sizes[-1]
+        sizes.append((max(h // 2, 1), max(w // 2, 1)))
+    return sizes
+
+
+def build_mip_chain(texture: torch.Tensor) -> list[torch.Tensor]:
+    """Mip levels of a linear texture, each the 2 x 2 box average of the one above.
+
+    Args:
+        texture: ``(H, W, C)`` float linear texture.
+
+    Returns:
+        Levels ``(H_l, W_l, C)`` from full size down to 1 x 1, sizes from :func:`mip_sizes`.
+        An odd row or column is dropped when halving; a side already at 1 is kept as it is.
+    """
+    levels = [texture]
+    for h, w in mip_sizes(*texture.shape[:2])[1:]:
+        above = levels[-1]
+        kernel = (2 if above.shape[0] > 1 else 1, 2 if above.shape[1] > 1 else 1)
+        pooled = F.avg_pool2d(above.permute(2, 0, 1)[None], kernel_size=kernel)[0]
+        levels.append(pooled.permute(1, 2, 0)[:h, :w])
+    return levels
+
+
+class MipTexture:
+    """A mip chain flattened into one ``(C, texels)`` table, for a per-sample choice of level.
+
+    Samples are passed as separate ``(N,)`` coordinate vectors and come back as ``(C, N)``:
+    one contiguous row per channel keeps the per-sample arithmetic vectorised on the CPU.
+
+    Args:
+        texture: ``(H, W, C)`` float linear texture (may require grad).
+    """
+
+    def __init__(self, texture: torch.Tensor):
+        levels = build_mip_chain(texture)
+        self.size = tuple(texture.shape[:2])
+        self.channels = int(texture.shape[2])
+        self.num_levels = len(levels)
+        flat = torch.cat([level.reshape(-1, self.channels) for level in levels])
+        self.texels = flat.T.contiguous()  # (C, texels of all levels)
+        sizes = torch.tensor([level.shape[:2] for level in levels], dtype=torch.long)
+        counts = sizes[:, 0] * sizes[:, 1]
+        device = texture.device
+        self.heights = sizes[:, 0].to(device)
+        self.widths = sizes[:, 1].to(device)
+        self.offsets = (torch.cumsum(counts, 0) - counts).to(device)
+
+    def bilinear(self, u: torch.Tensor, v: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
+        """Bilinear samples at integer mip ``level``, repeat addressing.
+
+        Args:
+            u, v: ``(N,)`` float texture coordinates.
+            level: ``(N,)`` int64 mip level per sample, in ``[0, num_levels)``.
+
+        Returns:
+            ``(C, N)`` filtered values.
+        """
+        height = self.heights[level]
+        width = self.widths[level]
+        x = u * width - 0.5
+        y = (1.0 - v) * height - 0.5
+        x0, y0 = torch.floor(x), torch.floor(y)
+        fx, fy = x - x0, y - y0
+        x0, y0 = x0.long(), y0.long()
+        cols = (torch.remainder(x0, width), torch.remainder(x0 + 1, width))
+        base = self.offsets[level]
+        rows = (
+            base + torch.remainder(y0, height) * width,
+            base + torch.remainder(y0 + 1, height) * width,
+        )
+
+        def tap(row: torch.Tensor, col: torch.Tensor) -> torch.Tensor:
+            return self.texels.index_select(1, row + col)
+
+        top = torch.lerp(tap(rows[0], cols[0]), tap(rows[0], cols[1]), fx)
+        bottom = torch.lerp(tap(rows[1], cols[0]), tap(rows[1], cols[1]), fx)
+        return torch.lerp(top, bottom, fy)
+
+    def level_of_detail(
+        self, du_dx: torch.Tensor, dv_dx: torch.Tensor, du_dy: torch.Tensor, dv_dy: torch.Tensor
+    ) -> torch.Tensor:
+        """Isotropic LOD: log2 of the larger singular value of the UV Jacobian in texels.
+
+        Args:
+            du_dx, dv_dx, du_dy, dv_dy: ``(N,)`` UV derivatives per screen sample step.
+
+        Returns:
+            ``(N,)`` unclamped level of detail (negative where texels are magnified).
+        """
+        height, width = self.size
+        a, c = du_dx * width, dv_dx * height
+        b, d = du_dy * width, dv_dy * height
+        frobenius = a * a + b * b + c * c + d * d
+        det = a * d - b * c
+        gap = (frobenius * frobenius - 4 * det * det).clamp_min(1e-20).sqrt()
+        sigma_max_sq = (0.5 * (frobenius + gap)).clamp_min(1e-30)
+        return 0.5 * torch.log2(sigma_max_sq)
+
+    def trilinear(self, u: torch.Tensor, v: torch.Tensor, lod: torch.Tensor) -> torch.Tensor:
+        """Trilinear samples: bilinear on the two levels around ``lod``, blended linearly.
+
+        Args:
+            u, v: ``(N,)`` texture coordinates.
+            lod: ``(N,)`` level of detail, clamped here to ``[0, num_levels - 1]``.
+
+        Returns:
+            ``(C, N)`` filtered values.
+        """
+        lod = lod.clamp(0.0, float(self.num_levels - 1))
+        fine = torch.floor(lod).long()
+        coarse = (fine + 1).clamp_max(self.num_levels - 1)
+        blend = lod - fine.to(lod.dtype)
+        return torch.lerp(self.bilinear(u, v, fine), self.bilinear(u, v, coarse), blend)
+
+    def sample(self, uv: UVFootprint) -> torch.Tensor:
+        """GPU-style texture lookup of every sample of a footprint: ``(C, N)``."""
+        lod = self.level_of_detail(uv.du_dx, uv.dv_dx, uv.du_dy, uv.dv_dy)
+        return self.trilinear(uv.u, uv.v, lod)
+
+
+class UVFootprint(NamedTuple):
+    """Texture coordinates of N screen samples and their derivatives per sample step.
+
+    Each field is ``(N,)``: ``u``, ``v``, then ``d/dx`` (one sample right) and ``d/dy`` (one
+    sample down) of each.
+    """
+
+    u: torch.Tensor
+    v: torch.Tensor
+    du_dx: torch.Tensor
+    dv_dx: torch.Tensor
+    du_dy: torch.Tensor
+    dv_dy: torch.Tensor

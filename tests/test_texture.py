@@ -1,0 +1,139 @@
+"""GPU-style texture filtering: sRGB, mip chain, bilinear/trilinear taps, level of detail."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from geoscaler.texture import (
+    MipTexture,
+    UVFootprint,
+    build_mip_chain,
+    linear_to_srgb,
+    linear_to_texture,
+    mip_sizes,
+    srgb_to_linear,
+    texture_to_linear,
+)
+
+
+def grid_texture(height, width, channels=1, dtype=torch.float64):
+    values = torch.arange(height * width * channels, dtype=dtype)
+    return values.reshape(height, width, channels)
+
+
+def uv_of_texel(row, col, height, width):
+    """Texture coordinates of a texel centre (v grows upwards, row 0 is the top)."""
+    return (col + 0.5) / width, 1 - (row + 0.5) / height
+
+
+def test_srgb_round_trip_keeps_every_8bit_value():
+    codes = torch.arange(256, dtype=torch.float64) / 255
+    back = linear_to_srgb(srgb_to_linear(codes)) * 255
+    assert torch.equal(back.round(), torch.arange(256, dtype=torch.float64))
+    assert srgb_to_linear(torch.tensor(0.5)).item() == pytest.approx(0.214041, abs=1e-6)
+
+
+def test_texture_conversion_round_trips_uint8():
+    texture = np.random.default_rng(0).integers(0, 256, (5, 7, 4), dtype=np.uint8)
+    linear = texture_to_linear(texture)
+    assert linear.shape == (5, 7, 3)
+    assert np.array_equal(linear_to_texture(linear), texture[..., :3])
+    gray = texture_to_linear(texture[..., 0])
+    assert torch.equal(gray[..., 0], gray[..., 2])
+
+
+def test_mip_sizes_halve_down_to_one():
+    assert mip_sizes(4, 4) == [(4, 4), (2, 2), (1, 1)]
+    assert mip_sizes(5, 3) == [(5, 3), (2, 1), (1, 1)]
+    assert mip_sizes(1, 8) == [(1, 8), (1, 4), (1, 2), (1, 1)]
+
+
+def test_mip_levels_are_two_by_two_box_averages():
+    levels = build_mip_chain(grid_texture(4, 4))
+    assert [tuple(level.shape[:2]) for level in levels] == [(4, 4), (2, 2), (1, 1)]
+    assert levels[1][0, 0, 0].item() == (0 + 1 + 4 + 5) / 4
+    assert levels[1][1, 1, 0].item() == (10 + 11 + 14 + 15) / 4
+    assert levels[2][0, 0, 0].item() == 7.5
+    odd = build_mip_chain(grid_texture(3, 3))
+    assert odd[1][0, 0, 0].item() == (0 + 1 + 3 + 4) / 4  # the odd row and column drop out
+
+
+def test_bilinear_at_texel_centres_returns_texels():
+    texture = MipTexture(grid_texture(3, 4))
+    rows, cols = torch.meshgrid(torch.arange(3), torch.arange(4), indexing="ij")
+    u, v = uv_of_texel(rows.flatten().double(), cols.flatten().double(), 3, 4)
+    values = texture.bilinear(u, v, torch.zeros(12, dtype=torch.long))
+    torch.testing.assert_close(values[0], torch.arange(12, dtype=torch.float64), atol=1e-12, rtol=0)
+
+
+def test_bilinear_hand_computed_values_and_repeat_addressing():
+    texture = MipTexture(grid_texture(2, 2))  # rows [0, 1] top, [2, 3] bottom
+    level0 = torch.zeros(4, dtype=torch.long)
+    u = torch.tensor([0.5, 0.25 + 0.125, 1.25, 0.0], dtype=torch.float64)
+    v = torch.tensor([0.5, 0.75, 0.75, 0.75], dtype=torch.float64)
+    values = texture.bilinear(u, v, level0)[0]
+    assert values[0].item() == 1.5  # centre: mean of all four
+    assert values[1].item() == pytest.approx(0.25)  # a quarter texel right of texel 0
+    assert values[2].item() == 0.0  # u = 1.25 repeats u = 0.25: texel 0
+    assert values[3].item() == 0.5  # u = 0 straddles the seam: texels 0 and 1 (wrapped)
+
+
+def test_trilinear_blends_neighbouring_levels():
+    texture = MipTexture(grid_texture(4, 4))
+    u = torch.tensor([0.5, 0.5, 0.5], dtype=torch.float64)
+    v = torch.tensor([0.5, 0.5, 0.5], dtype=torch.float64)
+    lod = torch.tensor([0.0, 0.5, 7.0], dtype=torch.float64)
+    values = texture.trilinear(u, v, lod)[0]
+    level0 = (5 + 6 + 9 + 10) / 4
+    level1 = 7.5  # the mean of the four 2 x 2 blocks around the centre
+    assert values[0].item() == level0
+    assert values[1].item() == pytest.approx((level0 + level1) / 2)
+    assert values[2].item() == 7.5  # clamped to the 1 x 1 level
+
+
+@pytest.mark.parametrize(
+    ("jacobian", "expected"),
+    [
+        (((1, 0), (0, 1)), 0.0),
+        (((2, 0), (0, 2)), 1.0),
+        (((4, 0), (0, 1)), 2.0),  # anisotropic: the larger singular value decides
+        (((0.25, 0), (0, 0.25)), -2.0),
+        (((3 * math.cos(0.3), -3 * math.sin(0.3)), (3 * math.sin(0.3), 3 * math.cos(0.3))),
+         math.log2(3)),
+    ],
+)
+def test_level_of_detail_is_log2_of_the_largest_singular_value(jacobian, expected):
+    texture = MipTexture(grid_texture(64, 32))
+    (du_dx, du_dy), (dv_dx, dv_dy) = jacobian  # in texels per sample
+    def column(value, size):
+        return torch.tensor([value / size], dtype=torch.float64)
+
+    lod = texture.level_of_detail(
+        column(du_dx, 32), column(dv_dx, 64), column(du_dy, 32), column(dv_dy, 64)
+    )
+    assert lod.item() == pytest.approx(expected, abs=1e-9)
+
+
+def test_sampling_is_differentiable_in_texels_and_uvs():
+    torch.manual_seed(0)
+    texels = torch.rand(4, 6, 3, dtype=torch.float64, requires_grad=True)
+    # Positions and footprints away from texel-centre and level boundaries, where the
+    # filter is smooth; each sample blends two levels.
+    u = torch.tensor([0.13, 0.41, 0.77], dtype=torch.float64, requires_grad=True)
+    v = torch.tensor([0.21, 0.58, 0.93], dtype=torch.float64, requires_grad=True)
+    du_dx = torch.tensor([0.21, 0.3, 0.45], dtype=torch.float64, requires_grad=True)
+    dv_dy = torch.tensor([0.3, 0.2, 0.05], dtype=torch.float64, requires_grad=True)
+    zero = torch.zeros(3, dtype=torch.float64)
+
+    def sample(texels, u, v, du_dx, dv_dy):
+        return MipTexture(texels).sample(UVFootprint(u, v, du_dx, zero, zero, dv_dy))
+
+    assert torch.autograd.gradcheck(sample, (texels, u, v, du_dx, dv_dy))
+
+
+def test_srgb_conversions_are_differentiable():
+    x = torch.tensor([0.001, 0.02, 0.3, 0.8], dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(srgb_to_linear, (x,))
+    assert torch.autograd.gradcheck(linear_to_srgb, (x,))
