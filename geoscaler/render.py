@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from geoscaler.cameras import Camera
+from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import TexturedMesh
 from geoscaler.raster import GBuffer, rasterize
 from geoscaler.texture import MipTexture, UVFootprint, linear_to_srgb, texture_to_linear
@@ -25,9 +26,14 @@ IMAGE_SIZE = 512
 SUPERSAMPLE = 2
 
 
-def default_device() -> torch.device:
-    """CUDA when torch sees a GPU, else the CPU."""
-    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+def resolve_device(name: str | torch.device | None = None) -> torch.device:
+    """The torch device for ``name``: ``None``/``"auto"`` means CUDA when torch sees a GPU."""
+    if name is None or name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    device = torch.device(name)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise GeoscalerError("device cuda: torch sees no CUDA GPU here; use --device cpu or auto")
+    return device
 
 
 class Renderer:
@@ -35,7 +41,7 @@ class Renderer:
 
     Args:
         mesh: the mesh; its geometry is fixed for the renderer's lifetime.
-        device: where tensors live (default: CUDA when available).
+        device: where tensors live (None or "auto": CUDA when available).
         image_size: output image side in pixels.
         supersample: samples per pixel side (2 means 2 x 2 supersampling).
     """
@@ -47,7 +53,7 @@ class Renderer:
         image_size: int = IMAGE_SIZE,
         supersample: int = SUPERSAMPLE,
     ):
-        self.device = torch.device(device) if device is not None else default_device()
+        self.device = resolve_device(device)
         self.image_size = image_size
         self.supersample = supersample
         self.mesh = mesh

@@ -100,13 +100,16 @@ def test_trilinear_blends_neighbouring_levels():
         (((2, 0), (0, 2)), 1.0),
         (((4, 0), (0, 1)), 2.0),  # anisotropic: the larger singular value decides
         (((0.25, 0), (0, 0.25)), -2.0),
-        (((3 * math.cos(0.3), -3 * math.sin(0.3)), (3 * math.sin(0.3), 3 * math.cos(0.3))),
-         math.log2(3)),
+        (
+            ((3 * math.cos(0.3), -3 * math.sin(0.3)), (3 * math.sin(0.3), 3 * math.cos(0.3))),
+            math.log2(3),
+        ),
     ],
 )
 def test_level_of_detail_is_log2_of_the_largest_singular_value(jacobian, expected):
     texture = MipTexture(grid_texture(64, 32))
     (du_dx, du_dy), (dv_dx, dv_dy) = jacobian  # in texels per sample
+
     def column(value, size):
         return torch.tensor([value / size], dtype=torch.float64)
 

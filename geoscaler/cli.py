@@ -1,0 +1,198 @@
+"""The ``geoscaler`` command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from geoscaler import PROTOCOL, __version__
+from geoscaler.errors import GeoscalerError
+
+DEFAULT_DEMO_DIR = Path("assets")
+DEMO_MESH_NAME = "geoscaler_demo.glb"
+
+
+def mesh_info(path: Path) -> dict:
+    """Facts about a mesh file: sizes, materials, textures, UV charts and texture coverage."""
+    from geoscaler.mesh import load_mesh
+    from geoscaler.uvmaps import chart_labels, uv_coverage
+
+    mesh = load_mesh(path)
+    materials = []
+    for index, material in enumerate(mesh.materials):
+        texture = material.base_color_texture
+        materials.append(
+            {
+                "name": material.name,
+                "faces": int((mesh.face_material == index).sum()),
+                "texture_size": None if texture is None else [texture.shape[1], texture.shape[0]],
+                "channels": None if texture is None else int(texture.shape[2]),
+                "base_color_factor": [round(float(x), 6) for x in material.base_color_factor],
+                "uv_coverage": None if texture is None else round(uv_coverage(mesh, index), 4),
+            }
+        )
+    return {
+        "path": str(path),
+        "vertices": len(mesh.positions),
+        "points": mesh.num_points,
+        "faces": len(mesh.faces),
+        "uv_charts": int(chart_labels(mesh).max()) + 1 if len(mesh.faces) else 0,
+        "uv_range": [mesh.uvs.min(0).round(4).tolist(), mesh.uvs.max(0).round(4).tolist()],
+        "bounds": [mesh.positions.min(axis=0).tolist(), mesh.positions.max(axis=0).tolist()],
+        "materials": materials,
+    }
+
+
+def _print_info(info: dict) -> None:
+    print(f"mesh       {info['path']}")
+    print(f"vertices   {info['vertices']:,} ({info['points']:,} 3D points after welding UV seams)")
+    print(f"faces      {info['faces']:,}")
+    (u0, v0), (u1, v1) = info["uv_range"]
+    print(f"UV charts  {info['uv_charts']:,}   UV range u [{u0}, {u1}]  v [{v0}, {v1}]")
+    for index, material in enumerate(info["materials"]):
+        factor = ", ".join(f"{x:g}" for x in material["base_color_factor"])
+        if material["texture_size"] is None:
+            texture = "no base-colour texture"
+        else:
+            width, height = material["texture_size"]
+            coverage = 100 * material["uv_coverage"]
+            texture = f"{width} x {height} x {material['channels']}, UV coverage {coverage:.1f}%"
+        print(
+            f"material {index} {material['name']!r}: {material['faces']:,} faces, {texture}, "
+            f"factor ({factor})"
+        )
+
+
+def cmd_info(args: argparse.Namespace) -> None:
+    info = mesh_info(Path(args.mesh))
+    if args.json:
+        print(json.dumps({"protocol": PROTOCOL, **info}, indent=2))
+    else:
+        _print_info(info)
+
+
+def _render_views(mesh, cameras, device: str | None, progress: bool = False) -> list[np.ndarray]:
+    """uint8 protocol renders of ``mesh`` with its own texture, one per camera."""
+    from tqdm import tqdm
+
+    from geoscaler.render import Renderer, image_to_uint8
+
+    renderer = Renderer(mesh, device)
+    textures = renderer.reference_textures()
+    images = []
+    for camera in tqdm(cameras, desc="rendering", unit="view", disable=not progress):
+        images.append(image_to_uint8(renderer.render(renderer.rasterize(camera), textures)))
+    return images
+
+
+def cmd_render(args: argparse.Namespace) -> None:
+    from geoscaler.cameras import VALIDATION_VIEWS, validation_cameras
+    from geoscaler.files import check_output, save_png
+    from geoscaler.mesh import load_mesh
+
+    if not 0 <= args.view < VALIDATION_VIEWS:
+        raise GeoscalerError(f"--view {args.view}: must be 0 to {VALIDATION_VIEWS - 1}")
+    if args.distance is not None and not args.distance > 1.0:
+        raise GeoscalerError(f"--distance {args.distance}: must be over 1 (outside the mesh)")
+    mesh_path = Path(args.mesh)
+    out = check_output(args.output, force=args.force, inputs=[mesh_path])
+    if out.suffix.lower() != ".png":
+        raise GeoscalerError(f"{out}: renders are written as PNG; use a .png name")
+    mesh = load_mesh(mesh_path)
+    camera = validation_cameras(args.distance or 2.4)[args.view]
+    (image,) = _render_views(mesh, [camera], args.device)
+    save_png(out, image)
+    print(f"wrote {out} (view {args.view} at distance {camera.distance}, {image.shape[1]} px)")
+
+
+def contact_sheet(images: list[np.ndarray], columns: int) -> np.ndarray:
+    """Tile equally sized ``(H, W, 3)`` uint8 images in rows of ``columns``."""
+    rows = -(-len(images) // columns)
+    height, width = images[0].shape[:2]
+    sheet = np.zeros((rows * height, columns * width, 3), dtype=np.uint8)
+    for index, image in enumerate(images):
+        r, c = divmod(index, columns)
+        sheet[r * height : (r + 1) * height, c * width : (c + 1) * width] = image[..., :3]
+    return sheet
+
+
+def cmd_demo(args: argparse.Namespace) -> None:
+    from geoscaler.cameras import validation_cameras
+    from geoscaler.files import check_output, save_png
+    from geoscaler.mesh import load_mesh, save_mesh
+    from geoscaler.procedural import demo_mesh
+
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    mesh_path = out_dir / DEMO_MESH_NAME
+    if not mesh_path.exists():
+        print(f"building the demo asset into {mesh_path}")
+        save_mesh(demo_mesh(), mesh_path)
+    _print_info(mesh_info(mesh_path))
+    views = [0, 17, 33, 50]
+    sheet_path = check_output(out_dir / "demo_views.png", force=True)
+    images = _render_views(
+        load_mesh(mesh_path), [validation_cameras()[i] for i in views], args.device, progress=True
+    )
+    save_png(sheet_path, contact_sheet(images, columns=2))
+    print(f"wrote {sheet_path}: protocol views {views} of the demo asset")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="geoscaler",
+        description="Downsample the textures of 3D meshes for the views people will see.",
+    )
+    parser.add_argument("--version", action="version", version=f"geoscaler {__version__}")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    info = commands.add_parser("info", help="describe a mesh: sizes, textures, UV charts")
+    info.add_argument("mesh", help="OBJ, glTF or GLB file")
+    info.add_argument("--json", action="store_true", help="print JSON instead of text")
+    info.set_defaults(run=cmd_info)
+
+    render = commands.add_parser("render", help="render one protocol view of a mesh to PNG")
+    render.add_argument("mesh", help="OBJ, glTF or GLB file")
+    render.add_argument("--view", type=int, default=0, help="validation view index 0-59")
+    render.add_argument("--distance", type=float, help="camera distance (default 2.4)")
+    render.add_argument("-o", "--output", required=True, help="PNG file to write")
+    render.add_argument("--force", action="store_true", help="replace an existing output")
+    render.add_argument(
+        "--device",
+        choices=["auto", "cpu", "cuda"],
+        default="auto",
+        help="auto: CUDA when torch sees a GPU",
+    )
+    render.set_defaults(run=cmd_render)
+
+    demo = commands.add_parser("demo", help="build the built-in demo asset and show it")
+    demo.add_argument("--out", default=str(DEFAULT_DEMO_DIR), help="folder (default assets/)")
+    demo.add_argument(
+        "--device",
+        choices=["auto", "cpu", "cuda"],
+        default="auto",
+        help="auto: CUDA when torch sees a GPU",
+    )
+    demo.set_defaults(run=cmd_demo)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        args.run(args)
+    except GeoscalerError as error:
+        print(f"geoscaler: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("geoscaler: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
