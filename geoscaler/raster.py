@@ -72,25 +72,48 @@ class GBuffer:
         pixels = self.pixels.long()
         return _ndc(pixels % self.resolution, pixels // self.resolution, self.resolution)
 
-    def barycentrics(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Perspective-correct barycentrics and their derivatives at the covered samples.
+    def interpolate(
+        self, corner_values: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Perspective-correct interpolation of per-corner values, with screen derivatives.
+
+        With ``b' = A p`` the value at a sample is ``sum_c a_c b'_c / sum_c b'_c``. Both sums
+        are affine in ``p``, so each attribute folds into one plane per triangle,
+        ``P = a^T A``, and the samples need only ``value = (P p) / (S p)`` where ``S`` is the
+        plane of the constant 1; the derivative along ``s_x`` is
+        ``(P_0 - value S_0) / (S p)``.
+
+        Args:
+            corner_values: ``(K, F, 3)`` values of K attributes at the corners of every
+                triangle (may require grad; any float dtype).
 
         Returns:
-            ``(b, db_dx, db_dy)``, each ``(3, N)`` float32: the weights of the triangle's three
-            vertices, and their derivatives per sample step to the right (x, columns) and down
-            (y, rows). Exact at the sample centre.
+            ``(values, d_dx, d_dy)``, each ``(K, N)``: the attributes at the covered samples
+            and their derivatives per sample step right (x, columns) and down (y, rows).
         """
+        a = self.tri_matrices.view(3, 3, -1)  # (corner, column of p, triangle)
+        planes = torch.einsum("kfc,cjf->kjf", corner_values, a.to(corner_values.dtype))
+        table = torch.cat([a.sum(0).to(planes.dtype)[None], planes])  # (1 + K, 3, F)
+        at = table.flatten(0, 1).index_select(1, self.tri_ids).view(len(table), 3, -1)
         sx, sy = self.sample_ndc()
-        a = self.tri_matrices.index_select(1, self.tri_ids)  # (9, N): A row-major
-        a = a.view(3, 3, -1)
-        b_over_w = a[:, 0] * sx + a[:, 1] * sy + a[:, 2]
-        inv_w = b_over_w.sum(0)
-        b = b_over_w / inv_w
-        # d(b'/S)/ds = (db'/ds - b dS/ds) / S with db'/ds a column of A and dS/ds its sum.
+        affine = at[:, 0] * sx + at[:, 1] * sy + at[:, 2]  # (1 + K, N)
+        scale = 1.0 / affine[0]
+        values = affine[1:] * scale
         step = 2.0 / self.resolution
-        db_dx = (a[:, 0] - b * a[:, 0].sum(0)) * (step / inv_w)
-        db_dy = (a[:, 1] - b * a[:, 1].sum(0)) * (-step / inv_w)
-        return b, db_dx, db_dy
+        d_dx = (at[1:, 0] - values * at[0, 0]) * (scale * step)
+        d_dy = (at[1:, 1] - values * at[0, 1]) * (scale * -step)
+        return values, d_dx, d_dy
+
+    def barycentrics(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Perspective-correct barycentrics and derivatives: :meth:`interpolate` of the corners.
+
+        Returns:
+            ``(b, db_dx, db_dy)``, each ``(3, N)`` float32: the weights of the triangle's
+            three corners and their derivatives per sample step right and down.
+        """
+        num_triangles = self.tri_matrices.shape[1]
+        corners = torch.eye(3, device=self.tri_matrices.device)[:, None, :]
+        return self.interpolate(corners.expand(3, num_triangles, 3))
 
 
 def _ndc(cols: torch.Tensor, rows: torch.Tensor, resolution: int):

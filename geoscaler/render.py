@@ -16,6 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
+from geoscaler.baselines import reference_texture
 from geoscaler.cameras import Camera
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import TexturedMesh
@@ -60,7 +61,6 @@ class Renderer:
         to = {"device": self.device}
         self.positions = torch.from_numpy(mesh.normalized_positions()).to(**to)
         self.faces = torch.from_numpy(np.asarray(mesh.faces, dtype=np.int64)).to(**to)
-        self.faces_by_corner = self.faces.T.contiguous()  # (3, F)
         self.uvs = torch.from_numpy(np.asarray(mesh.uvs, dtype=np.float32)).to(**to)
         self.face_material = torch.from_numpy(np.asarray(mesh.face_material, np.int64)).to(**to)
         factors = np.stack([m.base_color_factor[:3] for m in mesh.materials]).astype(np.float32)
@@ -72,11 +72,15 @@ class Renderer:
         return self.image_size * self.supersample
 
     def reference_textures(self) -> list[MipTexture | None]:
-        """Mip chains of the mesh's own base-colour textures (None for untextured materials)."""
+        """Mip chains of the protocol's reference maps (None for untextured materials).
+
+        The reference is the mesh's own base-colour texture, reduced with Lanczos to 2048
+        texels on its longer side when it is larger (PROTOCOL.md).
+        """
         return [
             None
             if m.base_color_texture is None
-            else MipTexture(texture_to_linear(m.base_color_texture, self.device))
+            else MipTexture(texture_to_linear(reference_texture(m.base_color_texture), self.device))
             for m in self.mesh.materials
         ]
 
@@ -94,18 +98,9 @@ class Renderer:
             uvs: ``(V, 2)`` UVs to use instead of the mesh's own (e.g. warped ones).
         """
         uvs = self.uvs if uvs is None else uvs
-        b, db_dx, db_dy = gbuffer.barycentrics()
-        corners = self.faces_by_corner.index_select(1, gbuffer.tri_ids)  # (3, N)
-        u = uvs[:, 0][corners]
-        v = uvs[:, 1][corners]
-        return UVFootprint(
-            u=(b * u).sum(0),
-            v=(b * v).sum(0),
-            du_dx=(db_dx * u).sum(0),
-            dv_dx=(db_dx * v).sum(0),
-            du_dy=(db_dy * u).sum(0),
-            dv_dy=(db_dy * v).sum(0),
-        )
+        corner_uvs = uvs[self.faces].permute(2, 0, 1)  # (2, F, 3)
+        (u, v), (du_dx, dv_dx), (du_dy, dv_dy) = gbuffer.interpolate(corner_uvs)
+        return UVFootprint(u, v, du_dx, dv_dx, du_dy, dv_dy)
 
     def shade(
         self,
@@ -148,8 +143,8 @@ class Renderer:
         channels = colours.shape[0]
         grid = colours.new_zeros(channels, self.resolution**2)
         grid = grid.index_copy(1, gbuffer.pixels.long(), colours)
-        side, ss = self.image_size, self.supersample
-        pixels = grid.view(channels, side, ss, side, ss).mean(dim=(2, 4))
+        grid = grid.view(1, channels, self.resolution, self.resolution)
+        pixels = torch.nn.functional.avg_pool2d(grid, self.supersample)[0]
         return pixels.permute(1, 2, 0)
 
     def _pixel_of_sample(self, gbuffer: GBuffer) -> torch.Tensor:

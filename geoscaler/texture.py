@@ -40,7 +40,7 @@ def texture_to_linear(texture: np.ndarray, device: torch.device | str = "cpu") -
     if texture.ndim == 2:
         texture = texture[..., None]
     rgb = texture[..., :3] if texture.shape[2] >= 3 else np.repeat(texture[..., :1], 3, axis=2)
-    values = torch.from_numpy(np.ascontiguousarray(rgb)).to(device=device, dtype=torch.float32)
+    values = torch.from_numpy(np.array(rgb, copy=True)).to(device=device, dtype=torch.float32)
     return srgb_to_linear(values / 255.0)
 
 
