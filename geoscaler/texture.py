@@ -83,39 +83,55 @@ def build_mip_chain(texture: torch.Tensor) -> list[torch.Tensor]:
     return levels
 
 
-class MipTexture:
-    """A mip chain flattened into one ``(C, texels)`` table, for a per-sample choice of level.
+class UVFootprint(NamedTuple):
+    """Texture coordinates of N screen samples and their derivatives per sample step.
 
-    Samples are passed as separate ``(N,)`` coordinate vectors and come back as ``(C, N)``:
-    one contiguous row per channel keeps the per-sample arithmetic vectorised on the CPU.
-
-    Args:
-        texture: ``(H, W, C)`` float linear texture (may require grad).
+    Each field is ``(N,)``: ``u``, ``v``, then ``d/dx`` (one sample right) and ``d/dy`` (one
+    sample down) of each.
     """
 
-    def __init__(self, texture: torch.Tensor):
-        levels = build_mip_chain(texture)
-        self.size = tuple(texture.shape[:2])
-        self.channels = int(texture.shape[2])
-        self.num_levels = len(levels)
-        flat = torch.cat([level.reshape(-1, self.channels) for level in levels])
-        self.texels = flat.T.contiguous()  # (C, texels of all levels)
-        sizes = torch.tensor([level.shape[:2] for level in levels], dtype=torch.long)
+    u: torch.Tensor
+    v: torch.Tensor
+    du_dx: torch.Tensor
+    dv_dx: torch.Tensor
+    du_dy: torch.Tensor
+    dv_dy: torch.Tensor
+
+
+class MipLayout:
+    """Where each level of a mip chain lives in one flat texel table, and which texels a
+    filtered lookup reads.
+
+    The filters are expressed as *taps*: ``(K, N)`` texel indices into the flat table and
+    ``(K, N)`` weights. A lookup is then one :func:`gather`, whatever the texel values are, so
+    a view whose UVs are fixed can cache its taps and re-filter new texels cheaply.
+
+    Args:
+        height, width: size of level 0 in texels.
+        device: where the index tensors live.
+    """
+
+    def __init__(self, height: int, width: int, device: torch.device | str = "cpu"):
+        sizes = torch.tensor(mip_sizes(height, width), dtype=torch.long)
         counts = sizes[:, 0] * sizes[:, 1]
-        device = texture.device
+        self.size = (height, width)
+        self.num_levels = len(sizes)
+        self.num_texels = int(counts.sum())
         self.heights = sizes[:, 0].to(device)
         self.widths = sizes[:, 1].to(device)
         self.offsets = (torch.cumsum(counts, 0) - counts).to(device)
 
-    def bilinear(self, u: torch.Tensor, v: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
-        """Bilinear samples at integer mip ``level``, repeat addressing.
+    def bilinear_taps(
+        self, u: torch.Tensor, v: torch.Tensor, level: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The 4 taps of bilinear filtering at integer mip ``level``, repeat addressing.
 
         Args:
-            u, v: ``(N,)`` float texture coordinates.
+            u, v: ``(N,)`` float texture coordinates (texel centres at (i + 0.5) / size).
             level: ``(N,)`` int64 mip level per sample, in ``[0, num_levels)``.
 
         Returns:
-            ``(C, N)`` filtered values.
+            ``(index, weight)``, each ``(4, N)``: texels (x0, y0), (x1, y0), (x0, y1), (x1, y1).
         """
         height = self.heights[level]
         width = self.widths[level]
@@ -124,19 +140,15 @@ class MipTexture:
         x0, y0 = torch.floor(x), torch.floor(y)
         fx, fy = x - x0, y - y0
         x0, y0 = x0.long(), y0.long()
-        cols = (torch.remainder(x0, width), torch.remainder(x0 + 1, width))
-        base = self.offsets[level]
-        rows = (
-            base + torch.remainder(y0, height) * width,
-            base + torch.remainder(y0 + 1, height) * width,
+        cols = torch.stack([torch.remainder(x0, width), torch.remainder(x0 + 1, width)])
+        rows = torch.stack([torch.remainder(y0, height), torch.remainder(y0 + 1, height)])
+        rows = self.offsets[level] + rows * width
+        index = torch.stack(
+            [rows[0] + cols[0], rows[0] + cols[1], rows[1] + cols[0], rows[1] + cols[1]]
         )
-
-        def tap(row: torch.Tensor, col: torch.Tensor) -> torch.Tensor:
-            return self.texels.index_select(1, row + col)
-
-        top = torch.lerp(tap(rows[0], cols[0]), tap(rows[0], cols[1]), fx)
-        bottom = torch.lerp(tap(rows[1], cols[0]), tap(rows[1], cols[1]), fx)
-        return torch.lerp(top, bottom, fy)
+        gx, gy = 1 - fx, 1 - fy
+        weight = torch.stack([gx * gy, fx * gy, gx * fy, fx * fy])
+        return index, weight
 
     def level_of_detail(
         self, du_dx: torch.Tensor, dv_dx: torch.Tensor, du_dy: torch.Tensor, dv_dy: torch.Tensor
@@ -158,38 +170,81 @@ class MipTexture:
         sigma_max_sq = (0.5 * (frobenius + gap)).clamp_min(1e-30)
         return 0.5 * torch.log2(sigma_max_sq)
 
-    def trilinear(self, u: torch.Tensor, v: torch.Tensor, lod: torch.Tensor) -> torch.Tensor:
-        """Trilinear samples: bilinear on the two levels around ``lod``, blended linearly.
+    def trilinear_taps(
+        self, u: torch.Tensor, v: torch.Tensor, lod: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The 8 taps of trilinear filtering: bilinear on the two levels around ``lod``.
 
         Args:
             u, v: ``(N,)`` texture coordinates.
             lod: ``(N,)`` level of detail, clamped here to ``[0, num_levels - 1]``.
 
         Returns:
-            ``(C, N)`` filtered values.
+            ``(index, weight)``, each ``(8, N)``: the finer level's 4 taps, then the coarser's.
         """
         lod = lod.clamp(0.0, float(self.num_levels - 1))
         fine = torch.floor(lod).long()
         coarse = (fine + 1).clamp_max(self.num_levels - 1)
         blend = lod - fine.to(lod.dtype)
-        return torch.lerp(self.bilinear(u, v, fine), self.bilinear(u, v, coarse), blend)
+        fine_index, fine_weight = self.bilinear_taps(u, v, fine)
+        coarse_index, coarse_weight = self.bilinear_taps(u, v, coarse)
+        index = torch.cat([fine_index, coarse_index])
+        weight = torch.cat([fine_weight * (1 - blend), coarse_weight * blend])
+        return index, weight
 
-    def sample(self, uv: UVFootprint) -> torch.Tensor:
-        """GPU-style texture lookup of every sample of a footprint: ``(C, N)``."""
-        lod = self.level_of_detail(uv.du_dx, uv.dv_dx, uv.du_dy, uv.dv_dy)
-        return self.trilinear(uv.u, uv.v, lod)
+    def taps(self, footprint: UVFootprint) -> tuple[torch.Tensor, torch.Tensor]:
+        """Trilinear taps of a GPU-style lookup of every sample of ``footprint``: ``(8, N)``."""
+        lod = self.level_of_detail(
+            footprint.du_dx, footprint.dv_dx, footprint.du_dy, footprint.dv_dy
+        )
+        return self.trilinear_taps(footprint.u, footprint.v, lod)
 
 
-class UVFootprint(NamedTuple):
-    """Texture coordinates of N screen samples and their derivatives per sample step.
+def gather(texels: torch.Tensor, index: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """Filter a flat texel table with taps.
 
-    Each field is ``(N,)``: ``u``, ``v``, then ``d/dx`` (one sample right) and ``d/dy`` (one
-    sample down) of each.
+    Args:
+        texels: ``(C, T)`` flat mip chain.
+        index, weight: ``(K, N)`` taps.
+
+    Returns:
+        ``(C, N)``: ``sum_k weight[k] * texels[:, index[k]]``.
+    """
+    values = texels.index_select(1, index.reshape(-1)).view(texels.shape[0], *index.shape)
+    return (values * weight).sum(1)
+
+
+class MipTexture:
+    """A texture ready for GPU-style lookups: its mip chain in one flat ``(C, T)`` table.
+
+    Samples are passed as separate ``(N,)`` coordinate vectors and come back as ``(C, N)``:
+    one contiguous row per channel keeps the per-sample arithmetic vectorised on the CPU.
+
+    Args:
+        texture: ``(H, W, C)`` float linear texture (may require grad).
     """
 
-    u: torch.Tensor
-    v: torch.Tensor
-    du_dx: torch.Tensor
-    dv_dx: torch.Tensor
-    du_dy: torch.Tensor
-    dv_dy: torch.Tensor
+    def __init__(self, texture: torch.Tensor):
+        height, width, self.channels = texture.shape
+        self.layout = MipLayout(height, width, texture.device)
+        self.size = self.layout.size
+        self.num_levels = self.layout.num_levels
+        levels = build_mip_chain(texture)
+        flat = torch.cat([level.reshape(-1, self.channels) for level in levels])
+        self.texels = flat.T.contiguous()  # (C, texels of all levels)
+
+    def bilinear(self, u: torch.Tensor, v: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
+        """``(C, N)`` bilinear samples at integer mip ``level`` (see :class:`MipLayout`)."""
+        return gather(self.texels, *self.layout.bilinear_taps(u, v, level))
+
+    def level_of_detail(self, *derivatives: torch.Tensor) -> torch.Tensor:
+        """``(N,)`` level of detail, :meth:`MipLayout.level_of_detail`."""
+        return self.layout.level_of_detail(*derivatives)
+
+    def trilinear(self, u: torch.Tensor, v: torch.Tensor, lod: torch.Tensor) -> torch.Tensor:
+        """``(C, N)`` trilinear samples at level of detail ``lod`` (clamped to the chain)."""
+        return gather(self.texels, *self.layout.trilinear_taps(u, v, lod))
+
+    def sample(self, footprint: UVFootprint) -> torch.Tensor:
+        """GPU-style texture lookup of every sample of a footprint: ``(C, N)``."""
+        return gather(self.texels, *self.layout.taps(footprint))
