@@ -1,0 +1,104 @@
+"""The registry of downsampling methods that `compare`, `bench` and `downsample` share.
+
+A method takes a mesh and an integer scale and returns 8-bit textures ``s`` times smaller
+(one per textured material) and, if it moves them, new UVs. Every method starts from the
+protocol's reference maps (originals above 2048 texels reduced to 2048 with Lanczos).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from geoscaler.baselines import BASELINES, reference_texture
+from geoscaler.errors import GeoscalerError
+from geoscaler.mesh import TexturedMesh
+
+
+@dataclass
+class MethodOptions:
+    """Settings a learned method may use; the baselines ignore them.
+
+    Attributes:
+        device: ``"auto"``, ``"cpu"`` or ``"cuda"``.
+        seed: random seed; the same seed gives the same result on the same device.
+        steps: optimisation steps (None: the method's default).
+        time_budget: wall-clock seconds the method may spend (None: no limit).
+        on_event: receives progress events from long-running methods.
+        extra: method-specific settings (for example a network variant).
+    """
+
+    device: str = "auto"
+    seed: int = 0
+    steps: int | None = None
+    time_budget: float | None = None
+    on_event: Callable[[Any], None] | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class MethodResult:
+    """What a method produced.
+
+    Attributes:
+        textures: per material, the ``(h, w, C)`` uint8 sRGB texture (None if untextured).
+        uvs: ``(V, 2)`` float32 new UVs, or None when the method keeps the mesh's own.
+        seconds: wall-clock time of the whole method.
+        details: method-specific facts for the report (steps run, device, ...).
+    """
+
+    textures: list[np.ndarray | None]
+    uvs: np.ndarray | None = None
+    seconds: float = 0.0
+    details: dict[str, Any] = field(default_factory=dict)
+
+
+Method = Callable[[TexturedMesh, int, MethodOptions], MethodResult]
+
+
+def reference_textures(mesh: TexturedMesh) -> list[np.ndarray | None]:
+    """The protocol's reference map of every material (None where untextured)."""
+    return [
+        None if m.base_color_texture is None else reference_texture(m.base_color_texture)
+        for m in mesh.materials
+    ]
+
+
+def _baseline(name: str) -> Method:
+    resize = BASELINES[name]
+
+    def run(mesh: TexturedMesh, scale: int, options: MethodOptions) -> MethodResult:
+        textures = [None if t is None else resize(t, scale) for t in reference_textures(mesh)]
+        return MethodResult(textures)
+
+    run.__doc__ = f"Pillow/closed-form baseline {name!r} on each reference map."
+    return run
+
+
+METHODS: dict[str, Method] = {name: _baseline(name) for name in BASELINES}
+
+
+def register(name: str, method: Method) -> None:
+    """Add a method to the registry (learned methods register themselves on import)."""
+    METHODS[name] = method
+
+
+def run_method(
+    name: str, mesh: TexturedMesh, scale: int, options: MethodOptions | None = None
+) -> MethodResult:
+    """Run a registered method and time it, wall clock, set-up included."""
+    if name not in METHODS:
+        known = ", ".join(sorted(METHODS))
+        raise GeoscalerError(f"unknown method {name!r}; choose one of: {known}")
+    start = time.perf_counter()
+    result = METHODS[name](mesh, scale, options or MethodOptions())
+    result.seconds = time.perf_counter() - start
+    return result
+
+
+# Learned methods register themselves; imported last because they build on this module.
+from geoscaler import direct as _direct  # noqa: E402, F401

@@ -1,0 +1,101 @@
+"""The command line: info, render and their errors (exit status 2, no traceback)."""
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from geoscaler.cli import main
+from geoscaler.errors import GeoscalerError
+from geoscaler.files import check_output, save_png, write_atomically
+from geoscaler.mesh import save_mesh
+from geoscaler.procedural import demo_mesh
+
+
+@pytest.fixture(scope="module")
+def small_glb(tmp_path_factory):
+    path = tmp_path_factory.mktemp("mesh") / "small.glb"
+    save_mesh(demo_mesh(subdivisions=6, texture_size=64), path)
+    return path
+
+
+def test_info_json_describes_the_mesh(small_glb, capsys):
+    assert main(["info", str(small_glb), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["protocol"] == 1
+    assert info["faces"] == 6 * 6 * 6 * 2
+    assert info["uv_charts"] == 6
+    (material,) = info["materials"]
+    assert material["texture_size"] == [64, 64]
+    assert material["base_color_factor"] == [1.0, 1.0, 1.0, 1.0]
+    assert 0.3 < material["uv_coverage"] < 0.8
+
+
+def test_info_text_mentions_charts_and_texture(small_glb, capsys):
+    assert main(["info", str(small_glb)]) == 0
+    out = capsys.readouterr().out
+    assert "UV charts  6" in out and "64 x 64 x 3" in out
+
+
+def test_render_writes_a_protocol_view(small_glb, tmp_path, capsys):
+    out = tmp_path / "view.png"
+    assert main(["render", str(small_glb), "--view", "3", "-o", str(out), "--device", "cpu"]) == 0
+    image = np.asarray(Image.open(out))
+    assert image.shape == (512, 512, 3)
+    assert (image.sum(-1) > 0).mean() > 0.2  # the mesh covers a good part of the frame
+    assert image[0, 0].sum() == 0  # black background in the corner
+
+
+def test_render_refuses_to_overwrite_without_force(small_glb, tmp_path, capsys):
+    out = tmp_path / "view.png"
+    out.write_bytes(b"keep me")
+    assert main(["render", str(small_glb), "-o", str(out)]) == 2
+    assert "already exists" in capsys.readouterr().err
+    assert out.read_bytes() == b"keep me"
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["render", "MESH", "--view", "60", "-o", "OUT"], "--view 60"),
+        (["render", "MESH", "--distance", "0.5", "-o", "OUT"], "--distance 0.5"),
+        (["render", "MESH", "-o", "OUT.jpg"], "PNG"),
+        (["render", "MESH", "-o", "MESH"], "input file"),
+        (["info", "missing.obj"], "missing.obj"),
+    ],
+)
+def test_bad_arguments_give_one_line_errors(small_glb, tmp_path, capsys, args, message):
+    args = [
+        str(small_glb) if a == "MESH" else str(tmp_path / "out.png") if a == "OUT" else a
+        for a in args
+    ]
+    args = [str(tmp_path / "out.jpg") if a == "OUT.jpg" else a for a in args]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("geoscaler: error:") and message in err
+    assert "Traceback" not in err
+
+
+def test_write_atomically_leaves_nothing_behind_on_failure(tmp_path):
+    target = tmp_path / "out.png"
+    target.write_bytes(b"old")
+
+    def broken(tmp):
+        tmp.write_bytes(b"half")
+        raise RuntimeError("disk full")
+
+    with pytest.raises(RuntimeError):
+        write_atomically(target, broken)
+    assert target.read_bytes() == b"old"
+    assert [p.name for p in tmp_path.iterdir()] == ["out.png"]
+
+
+def test_saved_png_has_usual_permissions(tmp_path):
+    path = save_png(tmp_path / "a.png", np.zeros((2, 2, 3), dtype=np.uint8))
+    assert path.stat().st_mode & 0o044 == 0o044  # readable by group and others
+
+
+def test_check_output_needs_an_existing_folder(tmp_path):
+    with pytest.raises(GeoscalerError, match="does not exist"):
+        check_output(tmp_path / "nope" / "a.png", force=False)
