@@ -1,0 +1,506 @@
+"""The per-mesh optimisation loop that every learned method shares.
+
+A *model* produces the candidate: linear-light textures (one per material, None where the
+material is untextured) and optionally new UVs. The loop renders K random training views of
+the candidate through the protocol renderer, compares them with renders of the original
+(L2 plus a weighted 1 - SSIM on the sRGB images, foreground only), and steps AdamW with a
+warm-up and cosine decay. Every ``validate_every`` steps it scores the candidate on the
+validation set Q and keeps the best state. It stops at a step count, a wall-clock budget or a
+plateau, and reports progress events that the CLI's progress bar and the desktop app consume.
+
+Training views are cached once (G-buffer, reference render, foreground, and for models that
+keep the mesh's UVs the texture taps), so a step costs only texel gathers and their gradients.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import torch
+
+from geoscaler.cameras import Camera, sample_training_cameras, validation_cameras
+from geoscaler.metrics import SSIMLoss, psnr_fg
+from geoscaler.raster import GBuffer
+from geoscaler.render import Renderer
+from geoscaler.texture import (
+    MipLayout,
+    MipTexture,
+    build_mip_chain,
+    gather,
+    linear_to_srgb,
+    quantize_linear,
+)
+
+# Training distances: wider than range S on both sides so the texture holds up from the near
+# robustness set (1.5, magnified texels) to the far one (4.0, where coarser mip levels of the
+# candidate are shown). See the README's "training range" note.
+TRAINING_DISTANCES = (1.5, 4.2)
+
+
+class Model(Protocol):
+    """What the loop optimises."""
+
+    def parameters(self) -> Sequence[torch.Tensor]: ...
+
+    def candidate(self) -> tuple[list[torch.Tensor | None], torch.Tensor | None]:
+        """``(textures, uvs)``: per material ``(h, w, 3)`` linear texture or None, and
+        ``(V, 2)`` UVs or None to keep the mesh's own."""
+        ...
+
+    def project(self) -> None:
+        """Called after each step to keep parameters valid (e.g. texels in [0, 1])."""
+        ...
+
+
+@dataclass
+class OptimizeConfig:
+    """Settings of the loop.
+
+    Attributes:
+        steps: maximum optimisation steps.
+        time_budget: wall-clock seconds for everything, cache building included (None: none).
+        views_per_step: K training views rendered per step.
+        pool_views: training cameras cached up front, drawn from ``distances``.
+        distances: camera distance range of the training views.
+        lr: peak learning rate; warm-up over ``warmup_steps``, then cosine decay to 0.
+        weight_decay: AdamW weight decay.
+        ssim_weight: weight of ``1 - SSIM`` beside the L2 term.
+        validate_every: steps between validations on Q (the last step always validates).
+        patience: validations without improvement before stopping (None: never).
+        seed: seeds the cameras and the view order.
+    """
+
+    steps: int = 400
+    time_budget: float | None = None
+    views_per_step: int = 4
+    pool_views: int = 48
+    distances: tuple[float, float] = TRAINING_DISTANCES
+    lr: float = 0.02
+    weight_decay: float = 0.0
+    warmup_steps: int = 10
+    ssim_weight: float = 0.1
+    validate_every: int = 50
+    patience: int | None = None
+    seed: int = 0
+
+
+@dataclass
+class ProgressEvent:
+    """A report from the loop.
+
+    Attributes:
+        phase: ``"caching"``, ``"step"``, ``"validation"`` or ``"done"``.
+        step: steps completed.
+        total_steps: the step limit.
+        elapsed: seconds since the loop started.
+        loss: the latest training loss (nan before the first step).
+        validation_psnr: PSNR-fg on Q of this validation (``"validation"`` events).
+        best_psnr: best validation PSNR-fg so far.
+        done / total: progress within the caching phase.
+        snapshot: returns the current candidate textures (linear, detached) on request.
+    """
+
+    phase: str
+    step: int
+    total_steps: int
+    elapsed: float
+    loss: float = math.nan
+    validation_psnr: float | None = None
+    best_psnr: float = -math.inf
+    done: int = 0
+    total: int = 0
+    snapshot: Callable[[], list[torch.Tensor | None]] | None = field(default=None, repr=False)
+
+
+class Controller:
+    """Pause, resume and stop a running loop from another thread."""
+
+    def __init__(self):
+        self._running = threading.Event()
+        self._running.set()
+        self._stop = threading.Event()
+
+    def pause(self) -> None:
+        self._running.clear()
+
+    def resume(self) -> None:
+        self._running.set()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._running.set()
+
+    @property
+    def stopped(self) -> bool:
+        return self._stop.is_set()
+
+    @property
+    def paused(self) -> bool:
+        return not self._running.is_set()
+
+    def wait_while_paused(self) -> None:
+        self._running.wait()
+
+
+@dataclass
+class CachedView:
+    """One camera, rasterised and rendered with the original once.
+
+    Attributes:
+        gbuffer: visibility of the view.
+        reference: ``(H, W, 3)`` sRGB render with the reference textures.
+        foreground: ``(H, W)`` bool.
+        taps: per material, ``(samples, index, weight)`` for models that keep the mesh's UVs:
+            which covered samples use the material (None: all) and their trilinear taps in a
+            texture of the candidate's size.
+    """
+
+    gbuffer: GBuffer
+    reference: torch.Tensor
+    foreground: torch.Tensor
+    taps: list[tuple[torch.Tensor | None, torch.Tensor, torch.Tensor] | None] | None = None
+
+
+class ViewCache:
+    """Cached views of one mesh for a candidate of fixed texture sizes.
+
+    Args:
+        renderer: the mesh's renderer.
+        cameras: the views.
+        sizes: per material the candidate's texture ``(h, w)`` (None: untextured).
+        with_taps: cache texture taps (only valid while the UVs stay the mesh's own).
+        progress: called as ``progress(done, total)``.
+    """
+
+    def __init__(
+        self,
+        renderer: Renderer,
+        cameras: Sequence[Camera],
+        sizes: Sequence[tuple[int, int] | None],
+        with_taps: bool,
+        progress: Callable[[int, int], None] | None = None,
+    ):
+        self.renderer = renderer
+        self.layouts = [None if s is None else MipLayout(*s, renderer.device) for s in sizes]
+        reference = renderer.reference_textures()
+        self.views: list[CachedView] = []
+        with torch.no_grad():
+            for index, camera in enumerate(cameras):
+                gbuffer = renderer.rasterize(camera)
+                view = CachedView(
+                    gbuffer,
+                    renderer.render(gbuffer, reference),
+                    renderer.foreground(gbuffer),
+                    self._taps(gbuffer) if with_taps else None,
+                )
+                self.views.append(view)
+                if progress:
+                    progress(index + 1, len(cameras))
+
+    def _taps(self, gbuffer: GBuffer):
+        footprint = self.renderer.footprint(gbuffer)
+        material = self.renderer.face_material.index_select(0, gbuffer.tri_ids)
+        single = len(self.layouts) == 1
+        taps = []
+        for index, layout in enumerate(self.layouts):
+            if layout is None:
+                taps.append(None)
+                continue
+            samples = None if single else torch.nonzero(material == index).squeeze(1)
+            part = (
+                footprint if samples is None else type(footprint)(*(t[samples] for t in footprint))
+            )
+            tap_index, weight = layout.taps(part)
+            taps.append((samples, tap_index.to(torch.int32), weight))
+        return taps
+
+    def render(
+        self, view: CachedView, textures: Sequence[torch.Tensor | None], uvs: torch.Tensor | None
+    ) -> torch.Tensor:
+        """``(H, W, 3)`` sRGB render of a candidate in a cached view (differentiable)."""
+        if uvs is not None or view.taps is None:
+            mips = [None if t is None else MipTexture(t) for t in textures]
+            return self.renderer.render(view.gbuffer, mips, uvs)
+        material = self.renderer.face_material.index_select(0, view.gbuffer.tri_ids)
+        colours = self.renderer.factors.T.index_select(1, material)  # (3, N)
+        for texture, taps in zip(textures, view.taps, strict=True):
+            if texture is None or taps is None:
+                continue
+            samples, index, weight = taps
+            texels = _flat_chain(texture)
+            filtered = gather(texels, index.long(), weight)
+            if samples is None:
+                colours = colours * filtered
+            else:
+                colours = colours.index_put((slice(None), samples), colours[:, samples] * filtered)
+        return linear_to_srgb(self.renderer.resolve(view.gbuffer, colours))
+
+
+def _flat_chain(texture: torch.Tensor) -> torch.Tensor:
+    """``(C, T)`` flat mip chain of an ``(h, w, C)`` linear texture."""
+    return MipTexture(texture).texels
+
+
+def rendering_loss(
+    image: torch.Tensor, reference: torch.Tensor, foreground: torch.Tensor, ssim_weight: float
+) -> torch.Tensor:
+    """``mean_fg (image - reference)^2 + ssim_weight (1 - SSIM_fg)`` for one view (sRGB)."""
+    mse = (image - reference).square().mean(-1)[foreground].mean()
+    if ssim_weight == 0:
+        return mse
+    rows = torch.nonzero(foreground.any(1)).squeeze(1)
+    cols = torch.nonzero(foreground.any(0)).squeeze(1)
+    pad = 8  # keep the SSIM window's context around the object
+    r0, r1 = max(int(rows[0]) - pad, 0), min(int(rows[-1]) + pad + 1, image.shape[0])
+    c0, c1 = max(int(cols[0]) - pad, 0), min(int(cols[-1]) + pad + 1, image.shape[1])
+    if r1 - r0 < 11 or c1 - c0 < 11:
+        return mse
+    crop = (slice(r0, r1), slice(c0, c1))
+    ssim = SSIMLoss()(image[crop][None], reference[crop][None], foreground[crop][None])
+    return mse + ssim_weight * ssim
+
+
+@dataclass
+class OptimizeResult:
+    """The best candidate and how the run went."""
+
+    textures: list[torch.Tensor | None]
+    uvs: torch.Tensor | None
+    steps: int
+    best_step: int
+    best_psnr: float
+    stopped_by: str
+    seconds: float
+    history: list[dict] = field(default_factory=list)
+
+
+def optimize(
+    renderer: Renderer,
+    model: Model,
+    config: OptimizeConfig,
+    on_event: Callable[[ProgressEvent], None] | None = None,
+    controller: Controller | None = None,
+    validation: Sequence[Camera] | None = None,
+    keeps_uvs: bool = True,
+) -> OptimizeResult:
+    """Optimise ``model`` so that renders of its candidate match renders of the original.
+
+    Args:
+        renderer: the mesh's renderer (its device is the device of the run).
+        model: the candidate's parameters.
+        config: loop settings.
+        on_event: receives :class:`ProgressEvent` reports.
+        controller: lets another thread pause, resume or stop the loop.
+        validation: validation cameras (default: the protocol's set Q).
+        keeps_uvs: the model never changes UVs, so texture taps can be cached.
+
+    Returns:
+        The best validated candidate (detached) and the run's history.
+    """
+    start = time.perf_counter()
+    controller = controller or Controller()
+    emit = on_event or (lambda event: None)
+    textures, _ = model.candidate()
+    sizes = [None if t is None else tuple(t.shape[:2]) for t in textures]
+    train_cameras = sample_training_cameras(config.pool_views, config.seed, config.distances)
+    val_cameras = list(validation) if validation is not None else validation_cameras()
+    total = len(train_cameras) + len(val_cameras)
+
+    def caching(offset: int):
+        return lambda done, _: emit(
+            ProgressEvent(
+                "caching",
+                0,
+                config.steps,
+                time.perf_counter() - start,
+                done=offset + done,
+                total=total,
+            )
+        )
+
+    train = ViewCache(renderer, train_cameras, sizes, keeps_uvs, caching(0))
+    val = ViewCache(renderer, val_cameras, sizes, keeps_uvs, caching(len(train_cameras)))
+
+    parameters = list(model.parameters())
+    optimizer = torch.optim.AdamW(parameters, lr=config.lr, weight_decay=config.weight_decay)
+    schedule = torch.optim.lr_scheduler.LambdaLR(
+        optimizer, lambda step: _learning_rate_factor(step, config)
+    )
+    generator = torch.Generator().manual_seed(config.seed)
+
+    def snapshot() -> list[torch.Tensor | None]:
+        with torch.no_grad():
+            current, _ = model.candidate()
+            return [None if t is None else t.detach().clone() for t in current]
+
+    best = _Best()
+    history: list[dict] = []
+    step, loss_value, stopped_by = 0, math.nan, "steps"
+    while step < config.steps:
+        controller.wait_while_paused()
+        if controller.stopped:
+            stopped_by = "stopped"
+            break
+        if config.time_budget is not None and time.perf_counter() - start > config.time_budget:
+            stopped_by = "time budget"
+            break
+        views = torch.randperm(len(train.views), generator=generator)[: config.views_per_step]
+        optimizer.zero_grad(set_to_none=True)
+        textures, uvs = model.candidate()
+        losses = []
+        for index in views.tolist():
+            view = train.views[index]
+            image = train.render(view, textures, uvs)
+            losses.append(
+                rendering_loss(image, view.reference, view.foreground, config.ssim_weight)
+            )
+        loss = torch.stack(losses).mean()
+        loss.backward()
+        optimizer.step()
+        schedule.step()
+        model.project()
+        step += 1
+        loss_value = float(loss)
+        elapsed = time.perf_counter() - start
+        emit(
+            ProgressEvent(
+                "step",
+                step,
+                config.steps,
+                elapsed,
+                loss_value,
+                best_psnr=best.psnr,
+                snapshot=snapshot,
+            )
+        )
+        history.append({"step": step, "loss": loss_value, "elapsed": elapsed})
+        if step % config.validate_every == 0 or step == config.steps:
+            psnr = _validate(val, model)
+            improved = best.offer(psnr, step, model)
+            history[-1]["validation_psnr_fg"] = psnr
+            emit(
+                ProgressEvent(
+                    "validation",
+                    step,
+                    config.steps,
+                    time.perf_counter() - start,
+                    loss_value,
+                    psnr,
+                    best.psnr,
+                    snapshot=snapshot,
+                )
+            )
+            if not improved and config.patience is not None and best.stale >= config.patience:
+                stopped_by = "plateau"
+                break
+
+    if best.step != step:  # stopped between validations: the current state may be better
+        best.offer(_validate(val, model), step, model)
+    if keeps_uvs:
+        best.textures = [
+            None if t is None else fill_unseen(t, seen_texels(train, index))
+            for index, t in enumerate(best.textures)
+        ]
+    seconds = time.perf_counter() - start
+    emit(ProgressEvent("done", step, config.steps, seconds, loss_value, None, best.psnr))
+    return OptimizeResult(
+        best.textures, best.uvs, step, best.step, best.psnr, stopped_by, seconds, history
+    )
+
+
+def _learning_rate_factor(step: int, config: OptimizeConfig) -> float:
+    """Linear warm-up over ``warmup_steps``, then cosine decay to 0 at ``steps``."""
+    if step < config.warmup_steps:
+        return (step + 1) / config.warmup_steps
+    span = max(config.steps - config.warmup_steps, 1)
+    return 0.5 * (1 + math.cos(math.pi * min((step - config.warmup_steps) / span, 1.0)))
+
+
+@torch.no_grad()
+def _validate(cache: ViewCache, model: Model) -> float:
+    """Mean PSNR-fg of the 8-bit-quantised candidate over the cached validation views."""
+    textures, uvs = model.candidate()
+    shipped = [None if t is None else quantize_linear(t) for t in textures]
+    values = [
+        psnr_fg(cache.render(v, shipped, uvs)[None], v.reference[None], v.foreground[None])
+        for v in cache.views
+    ]
+    return float(torch.cat(values).mean())
+
+
+class _Best:
+    """The best validated candidate so far."""
+
+    def __init__(self):
+        self.psnr = -math.inf
+        self.step = -1
+        self.stale = 0
+        self.textures: list[torch.Tensor | None] = []
+        self.uvs: torch.Tensor | None = None
+
+    def offer(self, psnr: float, step: int, model: Model) -> bool:
+        if psnr <= self.psnr:
+            self.stale += 1
+            return False
+        with torch.no_grad():
+            textures, uvs = model.candidate()
+            self.textures = [None if t is None else t.detach().clone() for t in textures]
+            self.uvs = None if uvs is None else uvs.detach().clone()
+        self.psnr, self.step, self.stale = psnr, step, 0
+        return True
+
+
+def seen_texels(cache: ViewCache, material: int) -> torch.Tensor:
+    """``(h, w)`` bool: level-0 texels that some cached view's taps read, through any level.
+
+    A texel is seen when a tap of a view reads it at level 0, or reads a coarser-level texel
+    whose box average includes it.
+    """
+    layout = cache.layouts[material]
+    usage = torch.zeros(layout.num_texels, device=layout.heights.device)
+    for view in cache.views:
+        taps = view.taps[material] if view.taps else None
+        if taps is not None:
+            usage.index_add_(0, taps[1].reshape(-1).long(), taps[2].reshape(-1).abs())
+    ones = torch.ones(*layout.size, 1, device=usage.device, requires_grad=True)
+    chain = torch.cat([level.reshape(-1) for level in build_mip_chain(ones)])
+    (grad,) = torch.autograd.grad((chain * usage).sum(), ones)
+    return grad[..., 0] > 0
+
+
+def fill_unseen(texture: torch.Tensor, seen: torch.Tensor) -> torch.Tensor:
+    """Pull-push fill: unseen texels take the average colour of the nearest seen ones.
+
+    Seen texels are returned unchanged. Pull: average colour and coverage down a pyramid of
+    2 x 2 sums; push: every unseen texel takes the value of its parent one level coarser.
+
+    Args:
+        texture: ``(h, w, C)`` float texture.
+        seen: ``(h, w)`` bool.
+
+    Returns:
+        ``(h, w, C)`` texture with every texel defined (if any texel is seen).
+    """
+    if seen.all() or not seen.any():
+        return texture.clone()
+    weight = seen.to(texture.dtype)[None, None]
+    value = texture.permute(2, 0, 1)[None] * weight
+    pyramid = [(value, weight)]
+    while pyramid[-1][1].shape[-1] > 1 or pyramid[-1][1].shape[-2] > 1:
+        value, weight = pyramid[-1]
+        pool = lambda x: torch.nn.functional.avg_pool2d(x, 2, ceil_mode=True) * 4  # noqa: E731
+        pyramid.append((pool(value), pool(weight)))
+    value, weight = pyramid[-1]
+    filled = value / weight.clamp_min(1e-12)
+    for value, weight in reversed(pyramid[:-1]):
+        parent = torch.nn.functional.interpolate(filled, scale_factor=2, mode="nearest")
+        parent = parent[..., : value.shape[-2], : value.shape[-1]]
+        own = value / weight.clamp_min(1e-12)
+        filled = torch.where(weight > 0, own, parent)
+    result = filled[0].permute(1, 2, 0)
+    return torch.where(seen[..., None], texture, result)
