@@ -41,7 +41,10 @@ def mesh_info(path: Path) -> dict:
         "points": mesh.num_points,
         "faces": len(mesh.faces),
         "uv_charts": int(chart_labels(mesh).max()) + 1 if len(mesh.faces) else 0,
-        "uv_range": [mesh.uvs.min(0).round(4).tolist(), mesh.uvs.max(0).round(4).tolist()],
+        "uv_range": [
+            np.round(mesh.uvs.min(0).astype(float), 4).tolist(),
+            np.round(mesh.uvs.max(0).astype(float), 4).tolist(),
+        ],
         "bounds": [mesh.positions.min(axis=0).tolist(), mesh.positions.max(axis=0).tolist()],
         "materials": materials,
     }
@@ -142,6 +145,54 @@ def cmd_demo(args: argparse.Namespace) -> None:
     print(f"wrote {sheet_path}: protocol views {views} of the demo asset")
 
 
+def cmd_compare(args: argparse.Namespace) -> None:
+    from geoscaler.compare import command
+
+    command(args)
+
+
+def cmd_bench(args: argparse.Namespace) -> None:
+    from geoscaler.bench import command
+
+    command(args)
+
+
+def _add_method_arguments(parser: argparse.ArgumentParser, scales: list[int]) -> None:
+    """Flags shared by compare and bench: scales, methods, view sets, device, method settings."""
+    default = " ".join(map(str, scales))
+    parser.add_argument(
+        "--scale",
+        type=int,
+        nargs="+",
+        default=scales,
+        help=f"reduction factors (default {default})",
+    )
+    parser.add_argument(
+        "--methods", help="comma-separated, e.g. box,bicubic,lanczos,pbd (default: all registered)"
+    )
+    parser.add_argument(
+        "--distance",
+        type=float,
+        nargs="+",
+        default=[2.4],
+        help="view-set distances: 2.4 is the validation set, 1.5 near, 4.0 far (default 2.4)",
+    )
+    parser.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    parser.add_argument("--out", help="folder to write results and pictures into")
+    parser.add_argument("--force", action="store_true", help="replace existing files in --out")
+    parser.add_argument(
+        "--device",
+        choices=["auto", "cpu", "cuda"],
+        default="auto",
+        help="auto: CUDA when torch sees a GPU",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of learned methods (default 0)")
+    parser.add_argument("--steps", type=int, help="optimisation steps of learned methods")
+    parser.add_argument(
+        "--time-budget", type=float, help="seconds a learned method may spend per mesh and scale"
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="geoscaler",
@@ -178,6 +229,20 @@ def build_parser() -> argparse.ArgumentParser:
         help="auto: CUDA when torch sees a GPU",
     )
     demo.set_defaults(run=cmd_demo)
+
+    compare = commands.add_parser(
+        "compare", help="compare downsampling methods on one mesh (protocol metrics, pictures)"
+    )
+    compare.add_argument("mesh", help="OBJ, glTF or GLB file")
+    _add_method_arguments(compare, scales=[4])
+    compare.set_defaults(run=cmd_compare)
+
+    bench = commands.add_parser(
+        "bench", help="compare methods over many meshes: tables, CSV/JSON/Markdown, plot"
+    )
+    bench.add_argument("paths", nargs="+", metavar="PATH", help="mesh files or folders")
+    _add_method_arguments(bench, scales=[4, 8])
+    bench.set_defaults(run=cmd_bench)
     return parser
 
 

@@ -146,16 +146,30 @@ def _symmetric_index(size: int, pad: int, device: torch.device) -> torch.Tensor:
     return torch.where(i >= size, 2 * size - 1 - i, i)
 
 
-def _gaussian_blur(x: torch.Tensor) -> torch.Tensor:
-    """Separable Gaussian filter of ``(N, K, H, W)`` planes -> ``(N, K, H, W)``.
+def _symmetric_pad(x: torch.Tensor, pad: int = SSIM_PAD) -> torch.Tensor:
+    """Extend ``(N, H, W, C)`` images by ``pad`` pixels of symmetric reflection on each side.
 
-    The planes are extended by ``SSIM_PAD`` symmetric reflection on each side, then filtered
-    by a row and a column pass (depthwise ``conv2d``, ``groups = K``).
+    Returns ``(N, H + 2 pad, W + 2 pad, C)``: ``d c b a | a b c d | d c b a`` along rows and
+    columns (:func:`_symmetric_index`). Mirrored slices are concatenated when ``pad`` fits in
+    the image (a contiguous copy, much cheaper than a gather); longer pads use the index.
     """
-    _, planes, height, width = x.shape
+    height, width = x.shape[1], x.shape[2]
+    if pad <= min(height, width):
+        x = torch.cat([x[:, :pad].flip(1), x, x[:, height - pad :].flip(1)], dim=1)
+        return torch.cat([x[:, :, :pad].flip(2), x, x[:, :, width - pad :].flip(2)], dim=2)
+    x = x.index_select(1, _symmetric_index(height, pad, x.device))
+    return x.index_select(2, _symmetric_index(width, pad, x.device))
+
+
+def _gaussian_filter_valid(x: torch.Tensor) -> torch.Tensor:
+    """Separable Gaussian filter of padded planes, valid part only.
+
+    ``(N, K, H + 2 SSIM_PAD, W + 2 SSIM_PAD)`` -> ``(N, K, H, W)``: a row and a column pass
+    (depthwise ``conv2d``, ``groups = K``). Channels-last input (as :func:`ssim_map` makes it)
+    takes the fastest CPU convolution path.
+    """
+    planes = x.shape[1]
     w = _gaussian_window(x.dtype, x.device)
-    x = x.index_select(2, _symmetric_index(height, SSIM_PAD, x.device))
-    x = x.index_select(3, _symmetric_index(width, SSIM_PAD, x.device))
     x = F.conv2d(x, w.view(1, 1, 1, -1).repeat(planes, 1, 1, 1), groups=planes)
     return F.conv2d(x, w.view(1, 1, -1, 1).repeat(planes, 1, 1, 1), groups=planes)
 
@@ -180,9 +194,12 @@ def ssim_map(image: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
         ``(N, H, W)`` SSIM map; exactly 1 where the views are identical.
     """
     _check_pair(image, reference)
-    x = image.permute(0, 3, 1, 2)
-    y = reference.permute(0, 3, 1, 2)
-    stats = _gaussian_blur(torch.cat([x, y, x * x, y * y, x * y], dim=1))
+    # Pad the 2 images before forming the 5 statistics: products of padded values are the
+    # padded products, and there are fewer planes to pad. (N, H', W', 5C) -> channels-last.
+    x = _symmetric_pad(image)
+    y = _symmetric_pad(reference)
+    planes = torch.cat([x, y, x * x, y * y, x * y], dim=-1).permute(0, 3, 1, 2)
+    stats = _gaussian_filter_valid(planes)
     mu_x, mu_y, xx, yy, xy = stats.chunk(5, dim=1)
     var_x = xx - mu_x * mu_x
     var_y = yy - mu_y * mu_y
@@ -245,6 +262,42 @@ def ssim_fg(image: torch.Tensor, reference: torch.Tensor, fg: torch.Tensor) -> t
     return _ssim_means(ssim_map(image, reference), fg)
 
 
+def _content_box(image: torch.Tensor, reference: torch.Tensor) -> tuple[slice, slice] | None:
+    """Rows and columns outside which SSIM is exactly 1 in every view of the batch.
+
+    Where both ``(N, H, W, C)`` images are zero in a pixel's whole window, ``mu``, ``var`` and
+    ``cov`` are exactly 0 and SSIM is ``C1 C2 / (C1 C2) = 1`` exactly (renders: the black
+    background around the mesh). The box is the bounding box of the non-zero pixels grown by
+    ``2 SSIM_PAD``, so that the symmetric padding of the cropped images reflects zeros exactly
+    where the full images hold zeros, and SSIM inside the box is the same as in the full image.
+
+    Returns:
+        ``(rows, cols)`` slices, or None when both images are zero everywhere.
+    """
+    nonzero = (image != 0).any(dim=-1) | (reference != 0).any(dim=-1)
+    rows = torch.nonzero(nonzero.any(dim=(0, 2))).flatten().tolist()
+    cols = torch.nonzero(nonzero.any(dim=(0, 1))).flatten().tolist()
+    if not rows:
+        return None
+    grow = 2 * SSIM_PAD
+    height, width = image.shape[1], image.shape[2]
+    return (
+        slice(max(rows[0] - grow, 0), min(rows[-1] + 1 + grow, height)),
+        slice(max(cols[0] - grow, 0), min(cols[-1] + 1 + grow, width)),
+    )
+
+
+def _ssim_map_on_content(image: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
+    """:func:`ssim_map`, computed only inside :func:`_content_box` (1 outside): faster on renders
+    of a mesh against a black background, the same values."""
+    smap = image.new_ones(image.shape[:3])
+    box = _content_box(image, reference)
+    if box is not None:
+        rows, cols = box
+        smap[:, rows, cols] = ssim_map(image[:, rows, cols], reference[:, rows, cols])
+    return smap
+
+
 @torch.no_grad()
 def evaluate(
     images: torch.Tensor,
@@ -277,7 +330,7 @@ def evaluate(
         img = images[start : start + batch_size]
         ref = references[start : start + batch_size]
         mask = fg[start : start + batch_size]
-        smap = ssim_map(img, ref)
+        smap = _ssim_map_on_content(img, ref)
         parts["psnr_fg"].append(psnr_fg(img, ref, mask))
         parts["psnr_full"].append(psnr_full(img, ref))
         parts["ssim_full"].append(_ssim_means(smap, None))

@@ -1,0 +1,276 @@
+"""geoscaler compare: the comparison core, its JSON, its picture and the command line."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+import geoscaler.compare as compare
+from geoscaler.cameras import validation_cameras
+from geoscaler.cli import main
+from geoscaler.compare import (
+    BYTES_PER_TEXEL,
+    ROW_KEYS,
+    compare_mesh,
+    comparison_json,
+    comparison_picture,
+    dumps,
+    format_table,
+    pick_views,
+)
+from geoscaler.errors import GeoscalerError
+from geoscaler.figures import colormap
+from geoscaler.mesh import save_mesh
+from geoscaler.methods import METHODS, MethodResult, reference_textures
+from geoscaler.metrics import evaluate, ssim_fg, ssim_full
+from geoscaler.procedural import demo_mesh
+from geoscaler.render import Renderer
+
+VIEWS = [0, 31]  # two protocol views keep the tests fast; the CLI always scores all 60
+
+
+def reference_method(mesh, scale, options):
+    """A fake method that ships the reference map itself: renders identical to the original."""
+    return MethodResult(reference_textures(mesh))
+
+
+@pytest.fixture(scope="module")
+def mesh():
+    return demo_mesh(subdivisions=8, texture_size=128)
+
+
+@pytest.fixture(scope="module")
+def registered():
+    """Register the fake ``reference`` method for this module only."""
+    METHODS["reference"] = reference_method
+    yield
+    del METHODS["reference"]
+
+
+@pytest.fixture(scope="module")
+def comparison(mesh, registered):
+    return compare_mesh(
+        mesh, [4], ["bicubic", "box", "reference"], views=VIEWS, renderer=small_renderer(mesh)
+    )
+
+
+def by_method(rows):
+    return {row["method"]: row for row in rows}
+
+
+def test_rows_have_the_documented_keys(comparison):
+    assert [row["method"] for row in comparison.rows] == ["bicubic", "box", "reference"]
+    box = by_method(comparison.rows)["box"]
+    assert set(ROW_KEYS) <= set(box)
+    assert box["scale"] == 4 and box["distance"] == 2.4 and box["views"] == len(VIEWS)
+    assert box["texture_size"] == [32, 32]
+    assert box["texture_bytes"] == 32 * 32 * BYTES_PER_TEXEL
+    assert 10 < box["psnr_fg"] < box["psnr_full"] < 60  # background pixels inflate PSNR-full
+    assert 0 < box["ssim_fg"] < box["ssim_full"] < 1
+    assert box["seconds"] >= 0
+
+
+def test_gain_is_psnr_fg_over_bicubic(comparison):
+    rows = by_method(comparison.rows)
+    assert rows["bicubic"]["gain_db"] == 0.0
+    assert rows["box"]["gain_db"] == rows["box"]["psnr_fg"] - rows["bicubic"]["psnr_fg"]
+
+
+def test_reference_texture_scores_perfectly(comparison):
+    row = by_method(comparison.rows)["reference"]
+    assert row["psnr_fg"] == math.inf and row["psnr_full"] == math.inf
+    assert row["ssim_full"] == 1.0 and row["ssim_fg"] == 1.0
+    assert row["gain_db"] == math.inf
+    assert row["texture_size"] == [128, 128]
+
+
+def test_json_is_strict_with_protocol_key(comparison):
+    document = json.loads(dumps(comparison_json("mesh.glb", comparison)))
+    assert document["protocol"] == 1 and document["mesh"] == "mesh.glb"
+    reference = by_method(document["results"])["reference"]
+    assert reference["psnr_fg"] is None and reference["ssim_fg"] == 1.0  # inf -> null
+    assert isinstance(by_method(document["results"])["box"]["psnr_fg"], float)
+
+
+def test_table_lists_each_row(comparison):
+    text = format_table(comparison.rows)
+    assert "distance 2.4 (2 views)" in text
+    assert "box" in text and "32x32" in text and "+0.00" in text
+
+
+def test_bicubic_runs_for_the_gain_but_is_only_shown_if_listed(mesh):
+    comparison = compare_mesh(mesh, [4], ["box"], views=[0], renderer=small_renderer(mesh))
+    assert [row["method"] for row in comparison.rows] == ["box"]
+    assert ("bicubic", 4) in comparison.outputs
+    assert comparison.rows[0]["gain_db"] != 0.0
+
+
+def test_each_method_runs_once_per_scale_whatever_the_distances(mesh):
+    calls = []
+
+    def counting(mesh, scale, options):
+        calls.append(scale)
+        return METHODS["box"](mesh, scale, options)
+
+    METHODS["counting"] = counting
+    try:
+        comparison = compare_mesh(
+            mesh, [4, 8], ["counting"], [1.5, 4.0], views=[5], renderer=small_renderer(mesh)
+        )
+    finally:
+        del METHODS["counting"]
+    assert calls == [4, 8]
+    order = [(row["distance"], row["scale"]) for row in comparison.rows]
+    assert order == [(1.5, 4), (1.5, 8), (4.0, 4), (4.0, 8)]
+    assert [row["texture_size"] for row in comparison.rows[:2]] == [[32, 32], [16, 16]]
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"methods": ["nope"]}, "unknown method 'nope'"),
+        ({"scales": [1]}, "whole number >= 2"),
+        ({"scales": [256]}, "larger than the 128 x 128 texture"),
+        ({"distances": [0.5]}, "must be over 1"),
+        ({"views": [60]}, "view 60"),
+    ],
+)
+def test_bad_arguments_raise_before_work(mesh, kwargs, message):
+    arguments = {"scales": [4], "methods": ["box"], "views": [0], **kwargs}
+    arguments["renderer"] = small_renderer(mesh)
+    with pytest.raises(GeoscalerError, match=message):
+        compare_mesh(mesh, **arguments)
+
+
+def test_picture_shows_original_and_each_method(mesh, comparison):
+    renderer = small_renderer(mesh)
+    picture = comparison_picture(
+        mesh, comparison, 4, ["box", "bicubic"], count=2, renderer=renderer
+    )
+    assert picture.dtype == np.uint8 and picture.shape[2] == 3
+    assert picture.shape[1] == 3 * 256 + 2 * 4  # original | box | bicubic
+    assert picture.shape[0] > 2 * 3 * 256  # two views of three rows each
+    assert len(np.unique(picture.reshape(-1, 3), axis=0)) > 1000  # renders, not blank tiles
+
+
+def test_pick_views_prefers_large_and_distinct_views():
+    counts = np.zeros(60)
+    counts[[3, 4, 40]] = [900, 1000, 800]
+    counts[50] = 100  # too small to be picked
+    picked = pick_views(counts, count=3)
+    assert picked[0] == 4 and set(picked) == {3, 4, 40}
+    assert pick_views(counts, count=2) == [4, 40]  # 40 is farther from 4 than 3 is
+
+
+def test_colormap_runs_dark_to_bright():
+    ramp = colormap(np.linspace(0, 1, 50)).astype(float)
+    luminance = ramp @ [0.2126, 0.7152, 0.0722]
+    assert ramp.shape == (50, 3)
+    assert np.all(np.diff(luminance) > 0)
+    assert tuple(colormap(np.array([-1.0, 2.0]))[0]) == (0, 0, 4)
+
+
+@pytest.mark.parametrize(
+    ("rows", "cols"), [((20, 40), (30, 45)), ((0, 64), (50, 64)), ((3, 9), (0, 7))]
+)
+def test_scoring_shortcut_on_black_background_is_exact(rows, cols):
+    """evaluate() computes SSIM only near non-black pixels (renders of a mesh on black): its
+    means must equal the plain full-map SSIM of geoscaler.metrics."""
+    generator = torch.Generator().manual_seed(0)
+    shape = (3, 64, 72, 3)
+    reference = torch.rand(shape, generator=generator, dtype=torch.float64)
+    image = (reference + 0.1 * torch.randn(shape, generator=generator, dtype=torch.float64)).clamp(
+        0, 1
+    )
+    content = torch.zeros(shape[:3], dtype=torch.bool)
+    content[0, slice(*rows), slice(*cols)] = True
+    content[2, 30:34, 10:12] = True  # view 1 stays all black
+    image, reference = image * content[..., None], reference * content[..., None]
+    fg = content & (torch.rand(shape[:3], generator=generator) > 0.3)
+    scores = evaluate(image, reference, fg, batch_size=2)
+    torch.testing.assert_close(scores["ssim_full"], ssim_full(image, reference), rtol=0, atol=1e-12)
+    torch.testing.assert_close(
+        scores["ssim_fg"], ssim_fg(image, reference, fg), rtol=0, atol=1e-12, equal_nan=True
+    )
+
+
+# --- the command line -----------------------------------------------------------------------
+
+
+def small_renderer(mesh, device=None):
+    """A renderer with 128-pixel images: 16 times cheaper than the protocol's 512."""
+    return Renderer(mesh, device, image_size=128)
+
+
+@pytest.fixture
+def one_view(monkeypatch):
+    """CLI runs on view 0 only, 128 pixels square (the real command: 60 views, 512 pixels)."""
+
+    def cameras(distance, views=None):
+        all_views = validation_cameras(distance)
+        return [all_views[i] for i in views] if views is not None else all_views[:1]
+
+    monkeypatch.setattr(compare, "protocol_cameras", cameras)
+    monkeypatch.setattr(compare, "Renderer", small_renderer)
+
+
+@pytest.fixture(scope="module")
+def glb(tmp_path_factory):
+    path = tmp_path_factory.mktemp("mesh") / "small.glb"
+    save_mesh(demo_mesh(subdivisions=8, texture_size=128), path)
+    return path
+
+
+def test_cli_json_and_out_folder(glb, tmp_path, one_view, capsys):
+    out = tmp_path / "out"
+    argv = ["compare", str(glb), "--scale", "4", "--methods", "box,bicubic", "--json"]
+    assert main([*argv, "--out", str(out), "--device", "cpu"]) == 0
+    document = json.loads(capsys.readouterr().out)
+    assert document["protocol"] == 1 and document["mesh"] == str(glb)
+    assert document["device"].startswith("cpu")
+    assert [r["method"] for r in document["results"]] == ["box", "bicubic"]
+    assert set(ROW_KEYS) <= set(document["results"][0])
+    assert sorted(p.name for p in out.iterdir()) == ["small_compare.json", "small_compare_x4.png"]
+    assert json.loads((out / "small_compare.json").read_text()) == document
+    assert Image.open(out / "small_compare_x4.png").size[0] == 3 * 256 + 2 * 4
+
+
+def test_cli_text_table(glb, one_view, capsys):
+    assert main(["compare", str(glb), "--methods", "bicubic", "--device", "cpu"]) == 0
+    out = capsys.readouterr().out
+    assert "protocol 1" in out and "PSNR-fg" in out and "bicubic" in out and "+0.00" in out
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--methods", "box,nope"], "unknown method 'nope'"),
+        (["--scale", "1"], "whole number >= 2"),
+        (["--distance", "0.5"], "must be over 1"),
+        (["--methods", "box,box"], "listed twice"),
+        (["--steps", "0"], "--steps 0"),
+    ],
+)
+def test_cli_bad_arguments_exit_2(glb, extra, message, capsys):
+    assert main(["compare", str(glb), *extra]) == 2
+    captured = capsys.readouterr()
+    assert message in captured.err and "Traceback" not in captured.err
+
+
+def test_cli_missing_mesh_exits_2(tmp_path, capsys):
+    assert main(["compare", str(tmp_path / "missing.glb")]) == 2
+    assert "no such file" in capsys.readouterr().err
+
+
+def test_cli_refuses_existing_outputs_without_force(glb, tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "small_compare.json").write_text("keep")
+    assert main(["compare", str(glb), "--methods", "box", "--out", str(out)]) == 2
+    assert "--force" in capsys.readouterr().err
+    assert (out / "small_compare.json").read_text() == "keep"
