@@ -16,6 +16,9 @@ from geoscaler.render import Renderer
 from geoscaler.texture import linear_to_texture, texture_to_linear
 
 DEFAULT_STEPS = 300
+# Measured on spot at 4x (200 steps): lr 0.05 without the SSIM term gained +1.86 dB PSNR-fg
+# over bicubic on Q; lr 0.02 with SSIM weight 0.1 gained +1.28 dB, at 1.5x the cost per step.
+DEFAULT_CONFIG = {"lr": 0.05, "ssim_weight": 0.0, "validate_every": 100}
 
 
 class TexelModel:
@@ -55,6 +58,7 @@ def direct(mesh: TexturedMesh, scale: int, options: MethodOptions) -> MethodResu
         config,
         on_event=options.on_event,
         controller=options.extra.get("controller"),
+        validation=options.extra.get("validation_views"),
     )
     textures = [None if t is None else linear_to_texture(t) for t in result.textures]
     details = {

@@ -29,7 +29,9 @@ class MethodOptions:
         steps: optimisation steps (None: the method's default).
         time_budget: wall-clock seconds the method may spend (None: no limit).
         on_event: receives progress events from long-running methods.
-        extra: method-specific settings (for example a network variant).
+        extra: further settings: ``"optimize"`` (OptimizeConfig fields), ``"controller"``
+            (pause/stop from another thread), ``"validation_views"`` (a ViewSet of Q to reuse),
+            or method-specific ones such as a network variant.
     """
 
     device: str = "auto"

@@ -8,8 +8,8 @@ warm-up and cosine decay. Every ``validate_every`` steps it scores the candidate
 validation set Q and keeps the best state. It stops at a step count, a wall-clock budget or a
 plateau, and reports progress events that the CLI's progress bar and the desktop app consume.
 
-Training views are cached once (G-buffer, reference render, foreground, and for models that
-keep the mesh's UVs the texture taps), so a step costs only texel gathers and their gradients.
+Training views are cached once (a :class:`~geoscaler.evaluate.ViewSet`, plus the texture taps
+for models that keep the mesh's UVs), so a step costs only texel gathers and their gradients.
 """
 
 from __future__ import annotations
@@ -23,15 +23,16 @@ from typing import Protocol
 
 import torch
 
-from geoscaler.cameras import Camera, sample_training_cameras, validation_cameras
+from geoscaler.cameras import VALIDATION_VIEWS, sample_training_cameras, validation_cameras
+from geoscaler.evaluate import ViewSet
 from geoscaler.metrics import SSIMLoss, psnr_fg
 from geoscaler.raster import GBuffer
 from geoscaler.render import Renderer
 from geoscaler.texture import (
     MipLayout,
     MipTexture,
+    UVFootprint,
     build_mip_chain,
-    gather,
     linear_to_srgb,
     quantize_linear,
 )
@@ -148,102 +149,113 @@ class Controller:
 
 
 @dataclass
-class CachedView:
-    """One camera, rasterised and rendered with the original once.
+class PixelTaps:
+    """A view's texture lookups for one material, folded into its pixels.
+
+    With fixed UVs a rendered pixel (before sRGB encoding) is a fixed weighted sum of texels of
+    the candidate's mip chain: its samples' trilinear taps, each weighted 1 / samples per
+    pixel. Taps of zero weight (the unused level of a magnified sample) are dropped.
 
     Attributes:
-        gbuffer: visibility of the view.
-        reference: ``(H, W, 3)`` sRGB render with the reference textures.
-        foreground: ``(H, W)`` bool.
-        taps: per material, ``(samples, index, weight)`` for models that keep the mesh's UVs:
-            which covered samples use the material (None: all) and their trilinear taps in a
-            texture of the candidate's size.
+        pixel: ``(T,)`` int32 flat pixel index of each tap.
+        texel: ``(T,)`` int32 index into the flat mip chain.
+        weight: ``(T,)`` float32.
     """
 
-    gbuffer: GBuffer
-    reference: torch.Tensor
-    foreground: torch.Tensor
-    taps: list[tuple[torch.Tensor | None, torch.Tensor, torch.Tensor] | None] | None = None
+    pixel: torch.Tensor
+    texel: torch.Tensor
+    weight: torch.Tensor
 
 
 class ViewCache:
-    """Cached views of one mesh for a candidate of fixed texture sizes.
+    """A :class:`ViewSet` plus, for models that keep the mesh's UVs, every view's texture taps
+    for candidate textures of fixed sizes, so a render is one gather per material.
 
     Args:
-        renderer: the mesh's renderer.
-        cameras: the views.
+        views: cached G-buffers and reference renders.
         sizes: per material the candidate's texture ``(h, w)`` (None: untextured).
-        with_taps: cache texture taps (only valid while the UVs stay the mesh's own).
-        progress: called as ``progress(done, total)``.
+        with_taps: cache the taps (valid only while the UVs stay the mesh's own).
     """
 
-    def __init__(
-        self,
-        renderer: Renderer,
-        cameras: Sequence[Camera],
-        sizes: Sequence[tuple[int, int] | None],
-        with_taps: bool,
-        progress: Callable[[int, int], None] | None = None,
-    ):
-        self.renderer = renderer
-        self.layouts = [None if s is None else MipLayout(*s, renderer.device) for s in sizes]
-        reference = renderer.reference_textures()
-        self.views: list[CachedView] = []
-        with torch.no_grad():
-            for index, camera in enumerate(cameras):
-                gbuffer = renderer.rasterize(camera)
-                view = CachedView(
-                    gbuffer,
-                    renderer.render(gbuffer, reference),
-                    renderer.foreground(gbuffer),
-                    self._taps(gbuffer) if with_taps else None,
-                )
-                self.views.append(view)
-                if progress:
-                    progress(index + 1, len(cameras))
+    def __init__(self, views: ViewSet, sizes: Sequence[tuple[int, int] | None], with_taps: bool):
+        self.views = views
+        self.renderer = views.renderer
+        device = self.renderer.device
+        self.layouts = [None if s is None else MipLayout(*s, device) for s in sizes]
+        self.taps: list[list[PixelTaps | None]] | None = None
+        self.untextured: list[torch.Tensor] | None = None
+        if with_taps:
+            with torch.no_grad():
+                self.taps = [self._taps(gbuffer) for gbuffer in views.gbuffers]
+                self.untextured = [self._untextured(gbuffer) for gbuffer in views.gbuffers]
 
-    def _taps(self, gbuffer: GBuffer):
+    def __len__(self) -> int:
+        return len(self.views)
+
+    def _taps(self, gbuffer: GBuffer) -> list[PixelTaps | None]:
         footprint = self.renderer.footprint(gbuffer)
         material = self.renderer.face_material.index_select(0, gbuffer.tri_ids)
-        single = len(self.layouts) == 1
-        taps = []
+        pixel_of_sample = self.renderer.pixel_of_sample(gbuffer)
+        share = 1.0 / self.renderer.supersample**2
+        taps: list[PixelTaps | None] = []
         for index, layout in enumerate(self.layouts):
-            if layout is None:
+            samples = torch.nonzero(material == index).squeeze(1)
+            if layout is None or len(samples) == 0:
                 taps.append(None)
                 continue
-            samples = None if single else torch.nonzero(material == index).squeeze(1)
-            part = (
-                footprint if samples is None else type(footprint)(*(t[samples] for t in footprint))
+            part = UVFootprint(*(t[samples] for t in footprint))
+            texel, weight = layout.taps(part)  # (8, n), sample-major after the transpose
+            pixel = pixel_of_sample[samples].expand(len(texel), -1)
+            keep = weight.T != 0
+            taps.append(
+                PixelTaps(
+                    pixel.T[keep].to(torch.int32),
+                    texel.T[keep].to(torch.int32),
+                    weight.T[keep] * share,
+                )
             )
-            tap_index, weight = layout.taps(part)
-            taps.append((samples, tap_index.to(torch.int32), weight))
         return taps
 
+    def _untextured(self, gbuffer: GBuffer) -> torch.Tensor:
+        """``(3, pixels)`` linear colour contributed by samples of untextured materials."""
+        material = self.renderer.face_material.index_select(0, gbuffer.tri_ids)
+        plain = torch.tensor([layout is None for layout in self.layouts], device=material.device)
+        hit = torch.nonzero(plain[material]).squeeze(1)
+        colours = self.renderer.factors.T.index_select(1, material[hit])
+        image = colours.new_zeros(3, self.renderer.image_size**2)
+        pixels = self.renderer.pixel_of_sample(gbuffer)[hit]
+        return image.index_add(1, pixels, colours, alpha=1.0 / self.renderer.supersample**2)
+
     def render(
-        self, view: CachedView, textures: Sequence[torch.Tensor | None], uvs: torch.Tensor | None
+        self, view: int, textures: Sequence[torch.Tensor | None], uvs: torch.Tensor | None
     ) -> torch.Tensor:
-        """``(H, W, 3)`` sRGB render of a candidate in a cached view (differentiable)."""
-        if uvs is not None or view.taps is None:
+        """``(H, W, 3)`` sRGB render of a candidate in cached view ``view`` (differentiable)."""
+        gbuffer = self.views.gbuffers[view]
+        if uvs is not None or self.taps is None or self.untextured is None:
             mips = [None if t is None else MipTexture(t) for t in textures]
-            return self.renderer.render(view.gbuffer, mips, uvs)
-        material = self.renderer.face_material.index_select(0, view.gbuffer.tri_ids)
-        colours = self.renderer.factors.T.index_select(1, material)  # (3, N)
-        for texture, taps in zip(textures, view.taps, strict=True):
+            return self.renderer.render(gbuffer, mips, uvs)
+        image = self.untextured[view]
+        for index, (texture, taps) in enumerate(zip(textures, self.taps[view], strict=True)):
             if texture is None or taps is None:
                 continue
-            samples, index, weight = taps
-            texels = _flat_chain(texture)
-            filtered = gather(texels, index.long(), weight)
-            if samples is None:
-                colours = colours * filtered
-            else:
-                colours = colours.index_put((slice(None), samples), colours[:, samples] * filtered)
-        return linear_to_srgb(self.renderer.resolve(view.gbuffer, colours))
+            texels = MipTexture(texture).texels.index_select(1, taps.texel) * taps.weight
+            lit = torch.zeros_like(image).index_add(1, taps.pixel, texels)
+            image = image + self.renderer.factors[index][:, None] * lit
+        side = self.renderer.image_size
+        return linear_to_srgb(image.T.reshape(side, side, 3))
 
-
-def _flat_chain(texture: torch.Tensor) -> torch.Tensor:
-    """``(C, T)`` flat mip chain of an ``(h, w, C)`` linear texture."""
-    return MipTexture(texture).texels
+    def loss(
+        self,
+        view: int,
+        textures: Sequence[torch.Tensor | None],
+        uvs: torch.Tensor | None,
+        ssim_weight: float,
+    ) -> torch.Tensor:
+        """:func:`rendering_loss` of a candidate in cached view ``view``."""
+        image = self.render(view, textures, uvs)
+        return rendering_loss(
+            image, self.views.references[view], self.views.foreground[view], ssim_weight
+        )
 
 
 def rendering_loss(
@@ -285,7 +297,7 @@ def optimize(
     config: OptimizeConfig,
     on_event: Callable[[ProgressEvent], None] | None = None,
     controller: Controller | None = None,
-    validation: Sequence[Camera] | None = None,
+    validation: ViewSet | None = None,
     keeps_uvs: bool = True,
 ) -> OptimizeResult:
     """Optimise ``model`` so that renders of its candidate match renders of the original.
@@ -296,7 +308,7 @@ def optimize(
         config: loop settings.
         on_event: receives :class:`ProgressEvent` reports.
         controller: lets another thread pause, resume or stop the loop.
-        validation: validation cameras (default: the protocol's set Q).
+        validation: cached validation views (default: built here for the protocol's set Q).
         keeps_uvs: the model never changes UVs, so texture taps can be cached.
 
     Returns:
@@ -308,23 +320,21 @@ def optimize(
     textures, _ = model.candidate()
     sizes = [None if t is None else tuple(t.shape[:2]) for t in textures]
     train_cameras = sample_training_cameras(config.pool_views, config.seed, config.distances)
-    val_cameras = list(validation) if validation is not None else validation_cameras()
-    total = len(train_cameras) + len(val_cameras)
+    total = len(train_cameras) + (0 if validation is not None else VALIDATION_VIEWS)
 
     def caching(offset: int):
-        return lambda done, _: emit(
-            ProgressEvent(
-                "caching",
-                0,
-                config.steps,
-                time.perf_counter() - start,
-                done=offset + done,
-                total=total,
+        def report(done: int, _: int) -> None:
+            elapsed = time.perf_counter() - start
+            emit(
+                ProgressEvent("caching", 0, config.steps, elapsed, done=offset + done, total=total)
             )
-        )
 
-    train = ViewCache(renderer, train_cameras, sizes, keeps_uvs, caching(0))
-    val = ViewCache(renderer, val_cameras, sizes, keeps_uvs, caching(len(train_cameras)))
+        return report
+
+    train = ViewCache(ViewSet(renderer, train_cameras, caching(0)), sizes, keeps_uvs)
+    if validation is None:
+        validation = ViewSet(renderer, validation_cameras(), caching(len(train_cameras)))
+    val = ViewCache(validation, sizes, keeps_uvs)
 
     parameters = list(model.parameters())
     optimizer = torch.optim.AdamW(parameters, lr=config.lr, weight_decay=config.weight_decay)
@@ -339,6 +349,7 @@ def optimize(
             return [None if t is None else t.detach().clone() for t in current]
 
     best = _Best()
+    best.offer(_validate(val, model), 0, model)  # the start is a candidate too
     history: list[dict] = []
     step, loss_value, stopped_by = 0, math.nan, "steps"
     while step < config.steps:
@@ -349,23 +360,17 @@ def optimize(
         if config.time_budget is not None and time.perf_counter() - start > config.time_budget:
             stopped_by = "time budget"
             break
-        views = torch.randperm(len(train.views), generator=generator)[: config.views_per_step]
+        views = torch.randperm(len(train), generator=generator)[: config.views_per_step]
         optimizer.zero_grad(set_to_none=True)
         textures, uvs = model.candidate()
-        losses = []
-        for index in views.tolist():
-            view = train.views[index]
-            image = train.render(view, textures, uvs)
-            losses.append(
-                rendering_loss(image, view.reference, view.foreground, config.ssim_weight)
-            )
+        losses = [train.loss(i, textures, uvs, config.ssim_weight) for i in views.tolist()]
         loss = torch.stack(losses).mean()
         loss.backward()
         optimizer.step()
         schedule.step()
         model.project()
         step += 1
-        loss_value = float(loss)
+        loss_value = loss.item()
         elapsed = time.perf_counter() - start
         emit(
             ProgressEvent(
@@ -426,9 +431,14 @@ def _validate(cache: ViewCache, model: Model) -> float:
     """Mean PSNR-fg of the 8-bit-quantised candidate over the cached validation views."""
     textures, uvs = model.candidate()
     shipped = [None if t is None else quantize_linear(t) for t in textures]
+    views = cache.views
     values = [
-        psnr_fg(cache.render(v, shipped, uvs)[None], v.reference[None], v.foreground[None])
-        for v in cache.views
+        psnr_fg(
+            cache.render(i, shipped, uvs)[None],
+            views.references[i : i + 1],
+            views.foreground[i : i + 1],
+        )
+        for i in range(len(views))
     ]
     return float(torch.cat(values).mean())
 
@@ -463,10 +473,10 @@ def seen_texels(cache: ViewCache, material: int) -> torch.Tensor:
     """
     layout = cache.layouts[material]
     usage = torch.zeros(layout.num_texels, device=layout.heights.device)
-    for view in cache.views:
-        taps = view.taps[material] if view.taps else None
+    for view_taps in cache.taps or []:
+        taps = view_taps[material]
         if taps is not None:
-            usage.index_add_(0, taps[1].reshape(-1).long(), taps[2].reshape(-1).abs())
+            usage.index_add_(0, taps.texel, taps.weight.abs())
     ones = torch.ones(*layout.size, 1, device=usage.device, requires_grad=True)
     chain = torch.cat([level.reshape(-1) for level in build_mip_chain(ones)])
     (grad,) = torch.autograd.grad((chain * usage).sum(), ones)

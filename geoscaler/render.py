@@ -121,14 +121,16 @@ class Renderer:
         footprint = self.footprint(gbuffer, uvs)
         if len(textures) == 1:
             colour = self.factors[0][:, None]
-            return colour * textures[0].sample(footprint) if textures[0] else colour.expand(3, -1)
+            if textures[0] is None:
+                return colour.expand(3, footprint.u.shape[0])
+            return colour * textures[0].sample(footprint)
         material = self.face_material.index_select(0, gbuffer.tri_ids)
         colours = self.factors.T.index_select(1, material)
         for index, texture in enumerate(textures):
             hit = torch.nonzero(material == index).squeeze(1)
             if texture is not None and len(hit):
                 texel = texture.sample(UVFootprint(*(t[hit] for t in footprint)))
-                colours = colours.index_put((slice(None), hit), colours[:, hit] * texel)
+                colours = colours.index_copy(1, hit, colours[:, hit] * texel)
         return colours
 
     def resolve(self, gbuffer: GBuffer, colours: torch.Tensor) -> torch.Tensor:
@@ -147,7 +149,8 @@ class Renderer:
         pixels = torch.nn.functional.avg_pool2d(grid, self.supersample)[0]
         return pixels.permute(1, 2, 0)
 
-    def _pixel_of_sample(self, gbuffer: GBuffer) -> torch.Tensor:
+    def pixel_of_sample(self, gbuffer: GBuffer) -> torch.Tensor:
+        """``(N,)`` int64 flat index of the output pixel each covered sample belongs to."""
         samples = gbuffer.pixels.long()
         row = samples // self.resolution // self.supersample
         col = samples % self.resolution // self.supersample
@@ -156,7 +159,7 @@ class Renderer:
     def foreground(self, gbuffer: GBuffer) -> torch.Tensor:
         """``(image_size, image_size)`` bool: pixels with any covered sample."""
         mask = torch.zeros(self.image_size**2, dtype=torch.bool, device=self.device)
-        mask[self._pixel_of_sample(gbuffer)] = True
+        mask[self.pixel_of_sample(gbuffer)] = True
         return mask.view(self.image_size, self.image_size)
 
     def render(

@@ -1,0 +1,190 @@
+"""The optimisation loop and method `direct` on a small procedural mesh."""
+
+import threading
+
+import numpy as np
+import pytest
+import torch
+
+from geoscaler.baselines import lanczos
+from geoscaler.cameras import validation_cameras
+from geoscaler.direct import TexelModel
+from geoscaler.evaluate import ViewSet
+from geoscaler.mesh import Material
+from geoscaler.methods import MethodOptions, reference_textures, run_method
+from geoscaler.metrics import mean_metrics
+from geoscaler.optimize import Controller, OptimizeConfig, ViewCache, fill_unseen, optimize
+from geoscaler.procedural import demo_mesh
+from geoscaler.render import Renderer
+from geoscaler.texture import linear_to_texture, texture_to_linear
+
+SCALE = 4
+
+
+@pytest.fixture(scope="module")
+def scene():
+    mesh = demo_mesh(subdivisions=6, texture_size=128)
+    renderer = Renderer(mesh, "cpu", image_size=64)
+    validation = ViewSet(renderer, validation_cameras()[::10])
+    return mesh, renderer, validation
+
+
+def small_config(**overrides) -> OptimizeConfig:
+    settings = dict(
+        steps=30,
+        pool_views=16,
+        views_per_step=4,
+        lr=0.02,
+        ssim_weight=0.0,
+        validate_every=10,
+        seed=1,
+    )
+    return OptimizeConfig(**{**settings, **overrides})
+
+
+def lanczos_model(mesh) -> TexelModel:
+    start = lanczos(reference_textures(mesh)[0], SCALE)
+    return TexelModel([texture_to_linear(start)])
+
+
+def run(scene, **overrides):
+    mesh, renderer, validation = scene
+    model = lanczos_model(mesh)
+    return optimize(renderer, model, small_config(**overrides), validation=validation)
+
+
+def test_direct_beats_its_lanczos_start_within_a_few_dozen_steps(scene):
+    mesh, _, validation = scene
+    start = mean_metrics(validation.score([lanczos(reference_textures(mesh)[0], SCALE)]))
+    result = run(scene)
+    final = mean_metrics(validation.score([linear_to_texture(result.textures[0])]))
+    assert result.steps == 30 and result.best_step == 30
+    assert final["psnr_fg"] > start["psnr_fg"] + 0.3
+
+
+def test_the_best_state_is_never_worse_than_the_start(scene):
+    mesh, _, validation = scene
+    start = mean_metrics(validation.score([lanczos(reference_textures(mesh)[0], SCALE)]))
+    result = run(scene, steps=5, lr=0.5)  # far too large: the steps only hurt
+    assert result.best_step == 0
+    assert result.best_psnr == pytest.approx(start["psnr_fg"], abs=0.05)
+
+
+def test_runs_are_deterministic_with_a_seed(scene):
+    first, second = run(scene, steps=6), run(scene, steps=6)
+    assert torch.equal(first.textures[0], second.textures[0])
+    assert first.history == [] or [h["loss"] for h in first.history] == [
+        h["loss"] for h in second.history
+    ]
+
+
+def test_step_limit_and_time_budget_stop_the_loop(scene):
+    assert run(scene, steps=3).steps == 3
+    stopped = run(scene, steps=50, time_budget=0.0)
+    assert stopped.steps == 0 and stopped.stopped_by == "time budget"
+
+
+def test_a_controller_stops_the_loop_from_outside(scene):
+    mesh, renderer, validation = scene
+    controller = Controller()
+    events = []
+
+    def on_event(event):
+        events.append(event)
+        if event.phase == "step" and event.step == 4:
+            controller.stop()
+
+    result = optimize(
+        renderer, lanczos_model(mesh), small_config(), on_event, controller, validation
+    )
+    assert result.steps == 4 and result.stopped_by == "stopped"
+    phases = [e.phase for e in events]
+    assert phases[0] == "caching" and phases[-1] == "done"
+    snapshot = [e for e in events if e.phase == "step"][-1].snapshot()
+    assert snapshot[0].shape == (32, 32, 3)
+
+
+def test_pause_blocks_until_resumed():
+    controller = Controller()
+    controller.pause()
+    assert controller.paused
+    resumed = threading.Event()
+
+    def waiter():
+        controller.wait_while_paused()
+        resumed.set()
+
+    thread = threading.Thread(target=waiter)
+    thread.start()
+    assert not resumed.wait(0.05)
+    controller.resume()
+    assert resumed.wait(2.0)
+    thread.join()
+
+
+def test_gutter_fill_keeps_seen_texels_and_fills_the_rest():
+    texture = torch.rand(6, 5, 3)
+    seen = torch.zeros(6, 5, dtype=torch.bool)
+    seen[1:3, 1:4] = True
+    filled = fill_unseen(texture, seen)
+    assert torch.equal(filled[seen], texture[seen])
+    assert torch.isfinite(filled).all()
+    seen_colours = texture[seen]
+    low, high = seen_colours.min(0).values, seen_colours.max(0).values
+    assert ((filled >= low - 1e-6) & (filled <= high + 1e-6)).all()  # averages of seen texels
+
+
+def test_a_single_seen_texel_colours_everything():
+    texture = torch.zeros(4, 4, 3)
+    texture[2, 1] = torch.tensor([0.2, 0.5, 0.9])
+    seen = torch.zeros(4, 4, dtype=torch.bool)
+    seen[2, 1] = True
+    filled = fill_unseen(texture, seen)
+    torch.testing.assert_close(filled, texture[2, 1].expand(4, 4, 3))
+
+
+def test_direct_method_returns_an_8bit_texture_of_the_target_size():
+    mesh = demo_mesh(subdivisions=4, texture_size=64)
+    options = MethodOptions(device="cpu", steps=2, extra={"optimize": {"pool_views": 2}})
+    validation = ViewSet(Renderer(mesh, "cpu"), validation_cameras()[:2])
+    options.extra["validation_views"] = validation
+    result = run_method("direct", mesh, SCALE, options)
+    (texture,) = result.textures
+    assert texture.dtype == np.uint8 and texture.shape == (16, 16, 3)
+    assert result.details["steps"] == 2 and result.seconds > 0
+
+
+def test_cached_taps_render_exactly_what_the_renderer_renders(scene):
+    _, _, validation = scene
+    texture = torch.rand(32, 32, 3)
+    cached = ViewCache(validation, [(32, 32)], with_taps=True)
+    general = ViewCache(validation, [(32, 32)], with_taps=False)
+    for view in range(len(validation)):
+        torch.testing.assert_close(
+            cached.render(view, [texture], None),
+            general.render(view, [texture], None),
+            atol=2e-6,
+            rtol=0,
+        )
+
+
+def test_cached_taps_handle_several_and_untextured_materials():
+    mesh = demo_mesh(subdivisions=4, texture_size=32)
+    mesh.face_material = np.arange(len(mesh.faces)) % 3
+    mesh.materials = [
+        mesh.materials[0],
+        Material("tinted", mesh.materials[0].base_color_texture, np.array([1, 0.5, 0.25, 1])),
+        Material("plain", None, np.array([0.2, 0.4, 0.6, 1.0], dtype=np.float32)),
+    ]
+    renderer = Renderer(mesh, "cpu", image_size=32)
+    views = ViewSet(renderer, validation_cameras()[:3])
+    textures = [torch.rand(8, 8, 3), torch.rand(16, 8, 3), None]
+    sizes = [(8, 8), (16, 8), None]
+    cached, general = ViewCache(views, sizes, True), ViewCache(views, sizes, False)
+    for view in range(3):
+        torch.testing.assert_close(
+            cached.render(view, textures, None),
+            general.render(view, textures, None),
+            atol=2e-6,
+            rtol=0,
+        )
