@@ -46,11 +46,12 @@ def direct(mesh: TexturedMesh, scale: int, options: MethodOptions) -> MethodResu
     model = TexelModel(
         [None if t is None else texture_to_linear(t, renderer.device) for t in starts]
     )
+    settings = {**DEFAULT_CONFIG, **options.extra.get("optimize", {})}
     config = OptimizeConfig(
         steps=options.steps or DEFAULT_STEPS,
         time_budget=options.time_budget,
         seed=options.seed,
-        **options.extra.get("optimize", {}),
+        **settings,
     )
     result = optimize(
         renderer,

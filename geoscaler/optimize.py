@@ -35,6 +35,8 @@ from geoscaler.texture import (
     build_mip_chain,
     linear_to_srgb,
     quantize_linear,
+    scatter_add,
+    take,
 )
 
 # Training distances: wider than range S on both sides so the texture holds up from the near
@@ -238,8 +240,8 @@ class ViewCache:
         for index, (texture, taps) in enumerate(zip(textures, self.taps[view], strict=True)):
             if texture is None or taps is None:
                 continue
-            texels = MipTexture(texture).texels.index_select(1, taps.texel) * taps.weight
-            lit = torch.zeros_like(image).index_add(1, taps.pixel, texels)
+            texels = take(MipTexture(texture).texels, taps.texel) * taps.weight
+            lit = scatter_add(image.shape[1], taps.pixel, texels)
             image = image + self.renderer.factors[index][:, None] * lit
         side = self.renderer.image_size
         return linear_to_srgb(image.T.reshape(side, side, 3))

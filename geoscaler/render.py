@@ -143,8 +143,10 @@ class Renderer:
             ``(image_size, image_size, C)`` image.
         """
         channels = colours.shape[0]
-        grid = colours.new_zeros(channels, self.resolution**2)
-        grid = grid.index_copy(1, gbuffer.pixels.long(), colours)
+        samples = gbuffer.pixels.long()
+        grid = torch.stack(
+            [row.new_zeros(self.resolution**2).index_copy(0, samples, row) for row in colours]
+        )
         grid = grid.view(1, channels, self.resolution, self.resolution)
         pixels = torch.nn.functional.avg_pool2d(grid, self.supersample)[0]
         return pixels.permute(1, 2, 0)

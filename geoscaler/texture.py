@@ -210,8 +210,23 @@ def gather(texels: torch.Tensor, index: torch.Tensor, weight: torch.Tensor) -> t
     Returns:
         ``(C, N)``: ``sum_k weight[k] * texels[:, index[k]]``.
     """
-    values = texels.index_select(1, index.reshape(-1)).view(texels.shape[0], *index.shape)
+    values = take(texels, index.reshape(-1)).view(texels.shape[0], *index.shape)
     return (values * weight).sum(1)
+
+
+def take(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """``(C, M)`` columns ``index`` of a ``(C, T)`` table.
+
+    One 1-D ``index_select`` per channel: on the CPU its backward (a 1-D ``index_add``) is
+    about 9 times faster than that of a single ``index_select`` along dim 1.
+    """
+    return torch.stack([row.index_select(0, index) for row in table])
+
+
+def scatter_add(size: int, index: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+    """``(C, size)`` zeros with ``(C, M)`` ``values`` added at columns ``index``, per channel
+    (see :func:`take` for why)."""
+    return torch.stack([values.new_zeros(size).index_add(0, index, row) for row in values])
 
 
 class MipTexture:
