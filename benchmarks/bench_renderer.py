@@ -6,10 +6,12 @@ Usage:
 
 With no MESH it measures the procedural demo mesh at 19,200 faces and, when ../shared/data is
 present, the 16,384-face YCB scans. Figures are medians over validation views 0..views-1:
-  raster   one 1024 x 1024 G-buffer (2 x 2 supersampling of the 512 x 512 view)
-  sample   shade every covered sample from the cache and resolve to 512 x 512 (forward only)
-  train    the same with gradients to the texels and the backward pass
-  cache    bytes held by one view's G-buffer
+  raster    one 1024 x 1024 G-buffer (2 x 2 supersampling of the 512 x 512 view)
+  ref ms    shade every covered sample from the G-buffer with the reference texture (2048 at
+            most) and resolve to 512 x 512, forward only
+  4x ms     the same with a texture 4 times smaller (a candidate at scale 4)
+  train ms  one training view of that candidate from cached pixel taps, forward + backward
+  cache MB  bytes held by one view's G-buffer; taps MB: one view's cached training taps
 """
 
 from __future__ import annotations
@@ -24,60 +26,70 @@ from pathlib import Path
 
 import torch
 
+from geoscaler.baselines import lanczos
 from geoscaler.cameras import validation_cameras
+from geoscaler.evaluate import ViewSet
 from geoscaler.mesh import TexturedMesh, load_mesh
+from geoscaler.methods import reference_textures
+from geoscaler.optimize import ViewCache
 from geoscaler.procedural import demo_mesh
 from geoscaler.render import Renderer, resolve_device
-from geoscaler.texture import MipTexture
+from geoscaler.texture import MipTexture, texture_to_linear
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 DEFAULT_SCANS = ["ycb_lego_duplo_a/textured.obj", "ycb_chain/textured.obj"]
 
 
 def _timed(fn, device: torch.device) -> float:
-    if device.type == "cuda":
-        torch.cuda.synchronize()
+    _sync(device)
     start = time.perf_counter()
     fn()
-    if device.type == "cuda":
-        torch.cuda.synchronize()
+    _sync(device)
     return time.perf_counter() - start
 
 
 def bench_mesh(name: str, mesh: TexturedMesh, views: int, device: torch.device) -> dict:
     renderer = Renderer(mesh, device)
     reference = renderer.reference_textures()
+    small = lanczos(reference_textures(mesh)[0], 4)
+    small_linear = texture_to_linear(small, device)
     cameras = validation_cameras()[:views]
     renderer.rasterize(cameras[0])  # warm-up
-    raster, sample, train, cache, samples = [], [], [], [], []
-    texels = torch.rand(*mesh.materials[0].base_color_texture.shape[:2], 3, device=device)
-    texels.requires_grad_(True)
+    raster, sample_ref, sample_small, train, cache, taps_mb, samples = ([] for _ in range(7))
     for camera in cameras:
         start = time.perf_counter()
         gbuffer = renderer.rasterize(camera)
-        if device.type == "cuda":
-            torch.cuda.synchronize()
+        _sync(device)
         raster.append(time.perf_counter() - start)
         cache.append(gbuffer.nbytes)
         samples.append(gbuffer.num_samples)
         with torch.no_grad():
-            sample.append(_timed(lambda g=gbuffer: renderer.render(g, reference), device))
-
-        def step(g=gbuffer):
-            image = renderer.render(g, [MipTexture(texels)])
-            image.square().mean().backward()
-
+            sample_ref.append(_timed(lambda g=gbuffer: renderer.render(g, reference), device))
+            mips = [MipTexture(small_linear)]
+            sample_small.append(_timed(lambda g=gbuffer, m=mips: renderer.render(g, m), device))
+        view = ViewCache(ViewSet(renderer, [camera]), [tuple(small.shape[:2])], with_taps=True)
+        taps = view.taps[0][0]
+        taps_mb.append(sum(t.element_size() * t.nelement() for t in vars(taps).values()) / 1e6)
+        texels = small_linear.clone().requires_grad_(True)
+        step = lambda v=view, t=texels: v.loss(0, [t], None, 0.0).backward()  # noqa: E731
         train.append(_timed(step, device))
     return {
         "mesh": name,
         "faces": len(mesh.faces),
-        "texture": list(mesh.materials[0].base_color_texture.shape[:2]),
+        "texture": list(reference[0].size),
         "covered_samples": int(statistics.median(samples)),
         "raster_s": statistics.median(raster),
-        "sample_ms": 1000 * statistics.median(sample),
-        "train_step_ms": 1000 * statistics.median(train),
+        "sample_reference_ms": 1000 * statistics.median(sample_ref),
+        "sample_4x_ms": 1000 * statistics.median(sample_small),
+        "train_view_ms": 1000 * statistics.median(train),
         "cache_mb": statistics.median(cache) / 1e6,
+        "taps_mb": statistics.median(taps_mb),
     }
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize()
 
 
 def main() -> int:
@@ -96,7 +108,7 @@ def main() -> int:
     if args.meshes:
         cases = [(Path(p).name, load_mesh(p)) for p in args.meshes]
     else:
-        cases.append(("procedural demo (40 x 40 per chart)", demo_mesh(subdivisions=40)))
+        cases.append(("procedural demo (40x40/chart)", demo_mesh(subdivisions=40)))
         cases += [
             (s.split("/")[0], load_mesh(DATA / s)) for s in DEFAULT_SCANS if (DATA / s).exists()
         ]
@@ -104,15 +116,19 @@ def main() -> int:
     cpu = platform.processor() or platform.machine()
     where = f"{device.type}, {torch.get_num_threads()} threads, {cpu}"
     print(f"renderer benchmark on {where}; medians over {args.views} validation views")
-    columns = ["faces", "samples", "raster s", "sample ms", "train ms", "cache MB"]
-    print(f"{'mesh':38} " + " ".join(f"{c:>9}" for c in columns))
+    columns = ["faces", "texture", "samples", "raster s", "ref ms", "4x ms", "train ms"]
+    columns += ["cache MB", "taps MB"]
+    print(f"{'mesh':30} " + " ".join(f"{c:>9}" for c in columns))
     results = []
     for name, mesh in cases:
         row = bench_mesh(name, mesh, args.views, device)
         results.append(row)
+        texture = "x".join(map(str, row["texture"]))
         print(
-            f"{name:38} {row['faces']:>7,} {row['covered_samples']:>8,} {row['raster_s']:>9.3f} "
-            f"{row['sample_ms']:>10.1f} {row['train_step_ms']:>9.1f} {row['cache_mb']:>9.2f}"
+            f"{name:30} {row['faces']:>9,} {texture:>9} {row['covered_samples']:>9,} "
+            f"{row['raster_s']:>9.3f} {row['sample_reference_ms']:>9.1f} "
+            f"{row['sample_4x_ms']:>9.1f} {row['train_view_ms']:>9.1f} {row['cache_mb']:>9.2f} "
+            f"{row['taps_mb']:>9.1f}"
         )
     if args.json:
         Path(args.json).write_text(json.dumps({"device": where, "results": results}, indent=2))
