@@ -8,6 +8,7 @@ would ship: 8-bit textures.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -40,6 +41,8 @@ class ViewSet:
         renderer: the renderer of the mesh under evaluation.
         cameras: the views (e.g. :func:`geoscaler.cameras.validation_cameras`).
         progress: optional callback while the set is built.
+        deadline: a ``time.perf_counter()`` value; cameras not cached by then are dropped
+            (keeping at least ``min_views``). For training pools under a time budget.
 
     Attributes:
         gbuffers: one :class:`GBuffer` per camera.
@@ -48,7 +51,12 @@ class ViewSet:
     """
 
     def __init__(
-        self, renderer: Renderer, cameras: Sequence[Camera], progress: Progress | None = None
+        self,
+        renderer: Renderer,
+        cameras: Sequence[Camera],
+        progress: Progress | None = None,
+        deadline: float | None = None,
+        min_views: int = 1,
     ):
         self.renderer = renderer
         self.cameras = list(cameras)
@@ -57,6 +65,9 @@ class ViewSet:
         references, foreground = [], []
         with torch.no_grad():
             for index, camera in enumerate(self.cameras):
+                if deadline is not None and index >= min_views and time.perf_counter() > deadline:
+                    self.cameras = self.cameras[:index]  # out of time: keep what is cached
+                    break
                 gbuffer = renderer.rasterize(camera)
                 self.gbuffers.append(gbuffer)
                 references.append(renderer.render(gbuffer, reference))

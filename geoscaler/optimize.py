@@ -43,6 +43,8 @@ from geoscaler.texture import (
 # robustness set (1.5, magnified texels) to the far one (4.0, where coarser mip levels of the
 # candidate are shown). See the README's "training range" note.
 TRAINING_DISTANCES = (1.5, 4.2)
+# Under a time budget, the training pool stops growing once this share of it is spent.
+CACHING_SHARE = 0.4
 
 
 class Model(Protocol):
@@ -333,10 +335,15 @@ def optimize(
 
         return report
 
-    train = ViewCache(ViewSet(renderer, train_cameras, caching(0)), sizes, keeps_uvs)
     if validation is None:
-        validation = ViewSet(renderer, validation_cameras(), caching(len(train_cameras)))
+        validation = ViewSet(renderer, validation_cameras(), caching(0))
     val = ViewCache(validation, sizes, keeps_uvs)
+    deadline = None
+    if config.time_budget is not None:  # leave most of the budget to the optimisation itself
+        deadline = start + CACHING_SHARE * config.time_budget
+    offset = total - len(train_cameras)
+    pool = ViewSet(renderer, train_cameras, caching(offset), deadline, config.views_per_step)
+    train = ViewCache(pool, sizes, keeps_uvs)
 
     parameters = list(model.parameters())
     optimizer = torch.optim.AdamW(parameters, lr=config.lr, weight_decay=config.weight_decay)

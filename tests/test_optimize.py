@@ -188,3 +188,10 @@ def test_cached_taps_handle_several_and_untextured_materials():
             atol=2e-6,
             rtol=0,
         )
+
+
+def test_a_time_budget_caps_the_training_pool(scene):
+    _, renderer, _ = scene
+    cameras = validation_cameras()[:10]
+    pool = ViewSet(renderer, cameras, deadline=0.0, min_views=3)  # deadline long past
+    assert len(pool) == 3 and len(pool.gbuffers) == 3 and pool.references.shape[0] == 3
