@@ -13,7 +13,6 @@ from geoscaler import PROTOCOL, __version__
 from geoscaler.errors import GeoscalerError
 
 DEFAULT_DEMO_DIR = Path("assets")
-DEMO_MESH_NAME = "geoscaler_demo.glb"
 
 
 def mesh_info(path: Path) -> dict:
@@ -112,37 +111,16 @@ def cmd_render(args: argparse.Namespace) -> None:
     print(f"wrote {out} (view {args.view} at distance {camera.distance}, {image.shape[1]} px)")
 
 
-def contact_sheet(images: list[np.ndarray], columns: int) -> np.ndarray:
-    """Tile equally sized ``(H, W, 3)`` uint8 images in rows of ``columns``."""
-    rows = -(-len(images) // columns)
-    height, width = images[0].shape[:2]
-    sheet = np.zeros((rows * height, columns * width, 3), dtype=np.uint8)
-    for index, image in enumerate(images):
-        r, c = divmod(index, columns)
-        sheet[r * height : (r + 1) * height, c * width : (c + 1) * width] = image[..., :3]
-    return sheet
+def cmd_downsample(args: argparse.Namespace) -> None:
+    from geoscaler.downsample import command
+
+    command(args)
 
 
 def cmd_demo(args: argparse.Namespace) -> None:
-    from geoscaler.cameras import validation_cameras
-    from geoscaler.files import check_output, save_png
-    from geoscaler.mesh import load_mesh, save_mesh
-    from geoscaler.procedural import demo_mesh
+    from geoscaler.downsample import demo
 
-    out_dir = Path(args.out)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    mesh_path = out_dir / DEMO_MESH_NAME
-    if not mesh_path.exists():
-        print(f"building the demo asset into {mesh_path}")
-        save_mesh(demo_mesh(), mesh_path)
-    _print_info(mesh_info(mesh_path))
-    views = [0, 17, 33, 50]
-    sheet_path = check_output(out_dir / "demo_views.png", force=True)
-    images = _render_views(
-        load_mesh(mesh_path), [validation_cameras()[i] for i in views], args.device, progress=True
-    )
-    save_png(sheet_path, contact_sheet(images, columns=2))
-    print(f"wrote {sheet_path}: protocol views {views} of the demo asset")
+    demo(args.out, args.device)
 
 
 def cmd_compare(args: argparse.Namespace) -> None:
@@ -193,6 +171,17 @@ def _add_method_arguments(parser: argparse.ArgumentParser, scales: list[int]) ->
     )
 
 
+def _scale_factor(text: str) -> int:
+    """argparse type of ``--scale``: a whole number (>= 2 is checked with the other errors)."""
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a whole number; a scale is a whole reduction factor >= 2, "
+            "e.g. 4 (2048 -> 512) or 8"
+        ) from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="geoscaler",
@@ -220,7 +209,58 @@ def build_parser() -> argparse.ArgumentParser:
     )
     render.set_defaults(run=cmd_render)
 
-    demo = commands.add_parser("demo", help="build the built-in demo asset and show it")
+    downsample = commands.add_parser(
+        "downsample",
+        help="the main job: a texture SCALE times smaller that renders like the original",
+        description="Write MESH with its base-colour textures SCALE times smaller (per side) in "
+        "the format OUT's suffix names, and report protocol-1 metrics on the validation views "
+        "for the result, bicubic and Lanczos. Ctrl-C stops the optimisation and still writes "
+        "the best result so far; a second Ctrl-C aborts.",
+    )
+    downsample.add_argument("mesh", metavar="MESH", help="OBJ, glTF or GLB file (never modified)")
+    downsample.add_argument(
+        "--scale",
+        type=_scale_factor,
+        default=4,
+        help="reduction factor per side, a whole number >= 2 (default 4: 2048 -> 512)",
+    )
+    downsample.add_argument(
+        "-o", "--output", required=True, metavar="OUT", help="mesh to write: .glb, .gltf or .obj"
+    )
+    downsample.add_argument(
+        "--method",
+        default="direct",
+        help="direct (default: optimised through the renderer), lanczos, bicubic, box or pbd",
+    )
+    downsample.add_argument(
+        "--time-budget",
+        type=float,
+        help="seconds a learned method may spend, view caching included (default 60)",
+    )
+    downsample.add_argument(
+        "--steps", type=int, help="maximum optimisation steps (default: the method's, 300)"
+    )
+    downsample.add_argument(
+        "--device",
+        choices=["auto", "cpu", "cuda"],
+        default="auto",
+        help="auto: CUDA when torch sees a GPU",
+    )
+    downsample.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    downsample.add_argument(
+        "--force", action="store_true", help="replace existing outputs (never the input)"
+    )
+    downsample.add_argument("--report", help="also write the report as JSON to this file")
+    downsample.set_defaults(run=cmd_downsample)
+
+    demo = commands.add_parser(
+        "demo",
+        help="build the built-in demo asset and downsample it 4x (under 2 minutes on 2 cores)",
+        description="Build (or reuse) DIR/geoscaler_demo.glb, run `downsample --scale 4` on it "
+        "with method direct (at most 120 steps and 75 s), print the report, and write "
+        "DIR/geoscaler_demo_x4.glb, DIR/geoscaler_demo_x4.json and DIR/demo_comparison.png "
+        "(earlier demo outputs in DIR are replaced).",
+    )
     demo.add_argument("--out", default=str(DEFAULT_DEMO_DIR), help="folder (default assets/)")
     demo.add_argument(
         "--device",

@@ -347,9 +347,6 @@ def optimize(
 
     parameters = list(model.parameters())
     optimizer = torch.optim.AdamW(parameters, lr=config.lr, weight_decay=config.weight_decay)
-    schedule = torch.optim.lr_scheduler.LambdaLR(
-        optimizer, lambda step: _learning_rate_factor(step, config)
-    )
     generator = torch.Generator().manual_seed(config.seed)
 
     def snapshot() -> list[torch.Tensor | None]:
@@ -375,8 +372,11 @@ def optimize(
         losses = [train.loss(i, textures, uvs, config.ssim_weight) for i in views.tolist()]
         loss = torch.stack(losses).mean()
         loss.backward()
+        for group in optimizer.param_groups:
+            group["lr"] = config.lr * _learning_rate_factor(
+                step, _time_spent(start, config), config
+            )
         optimizer.step()
-        schedule.step()
         model.project()
         step += 1
         loss_value = loss.item()
@@ -427,12 +427,25 @@ def optimize(
     )
 
 
-def _learning_rate_factor(step: int, config: OptimizeConfig) -> float:
-    """Linear warm-up over ``warmup_steps``, then cosine decay to 0 at ``steps``."""
+def _time_spent(start: float, config: OptimizeConfig) -> float:
+    """Fraction of the time budget used so far (0 without a budget)."""
+    if config.time_budget is None or config.time_budget <= 0:
+        return 0.0
+    return (time.perf_counter() - start) / config.time_budget
+
+
+def _learning_rate_factor(step: int, time_spent: float, config: OptimizeConfig) -> float:
+    """Linear warm-up over ``warmup_steps``, then cosine decay to 0.
+
+    The decay follows whichever runs out first, the steps or the time budget (so a budgeted
+    run ends at a low learning rate too); with a budget the schedule, and so the result, depends
+    on the machine's speed.
+    """
     if step < config.warmup_steps:
         return (step + 1) / config.warmup_steps
     span = max(config.steps - config.warmup_steps, 1)
-    return 0.5 * (1 + math.cos(math.pi * min((step - config.warmup_steps) / span, 1.0)))
+    progress = max((step - config.warmup_steps) / span, time_spent)
+    return 0.5 * (1 + math.cos(math.pi * min(progress, 1.0)))
 
 
 @torch.no_grad()

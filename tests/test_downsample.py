@@ -1,0 +1,280 @@
+"""`geoscaler downsample` and `geoscaler demo` on a tiny procedural mesh.
+
+The command runs as users run it, except for the module's test hooks: 2 validation views of
+128 pixels stand for Q (the protocol: 60 of 512) and the optimiser caches 2 training views.
+"""
+
+import json
+import os
+import signal
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from geoscaler import downsample as ds
+from geoscaler import files
+from geoscaler.baselines import lanczos
+from geoscaler.cli import main
+from geoscaler.mesh import load_mesh, save_mesh
+from geoscaler.procedural import demo_mesh
+from geoscaler.render import Renderer
+
+QUICK_VIEWS = [0, 31]
+QUICK_OPTIMIZE = {"pool_views": 2, "views_per_step": 2, "validate_every": 1}
+
+
+def small_renderer(mesh, device=None):
+    return Renderer(mesh, device, image_size=128)
+
+
+def quick_hooks(patch) -> None:
+    patch.setattr(ds, "VALIDATION_VIEWS", QUICK_VIEWS)
+    patch.setattr(ds, "RENDERER", small_renderer)
+    patch.setattr(ds, "OPTIMIZE_OVERRIDES", QUICK_OPTIMIZE)
+
+
+@pytest.fixture(autouse=True)
+def quick(monkeypatch):
+    quick_hooks(monkeypatch)
+
+
+def tiny_mesh():
+    return demo_mesh(subdivisions=4, texture_size=64)
+
+
+@pytest.fixture(scope="module")
+def glb(tmp_path_factory):
+    path = tmp_path_factory.mktemp("input") / "tiny.glb"
+    save_mesh(tiny_mesh(), path)
+    return path
+
+
+def folder_bytes(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+@pytest.fixture(scope="module")
+def direct_run(glb, tmp_path_factory):
+    """One `downsample --method direct --steps 2 --report` run; what it wrote and produced."""
+    out_dir = tmp_path_factory.mktemp("out")
+    before = folder_bytes(glb.parent)
+    produced = {}
+    real_export = ds.export
+
+    def spy(mesh, result, output, force=False):
+        produced["textures"] = [None if t is None else t.copy() for t in result.textures]
+        produced["uvs"] = result.uvs
+        return real_export(mesh, result, output, force)
+
+    with pytest.MonkeyPatch.context() as patch:
+        quick_hooks(patch)
+        patch.setattr(ds, "export", spy)
+        argv = ["downsample", str(glb), "--scale", "4", "-o", str(out_dir / "small.glb")]
+        argv += ["--steps", "2", "--device", "cpu", "--report", str(out_dir / "report.json")]
+        status = main(argv)
+    return {
+        "status": status,
+        "out": out_dir / "small.glb",
+        "report": json.loads((out_dir / "report.json").read_text()),
+        "produced": produced,
+        "before": before,
+        "after": folder_bytes(glb.parent),
+    }
+
+
+def test_direct_writes_the_mesh_with_the_new_texture(direct_run, glb):
+    assert direct_run["status"] == 0
+    written = load_mesh(direct_run["out"])
+    (texture,) = direct_run["produced"]["textures"]
+    assert texture.dtype == np.uint8 and texture.shape == (16, 16, 3)  # 64 / 4
+    np.testing.assert_array_equal(written.materials[0].base_color_texture, texture)
+    assert direct_run["produced"]["uvs"] is None  # direct keeps the mesh's UVs
+    original = load_mesh(glb)
+    np.testing.assert_array_equal(written.uvs[written.faces], original.uvs[original.faces])
+    np.testing.assert_allclose(written.positions[written.faces], original.positions[original.faces])
+    assert not np.array_equal(texture, lanczos(original.materials[0].base_color_texture, 4))
+
+
+def test_report_json_has_protocol_results_and_gain(direct_run, glb):
+    report = direct_run["report"]
+    assert report["protocol"] == 1
+    assert report["mesh"] == str(glb) and report["output"] == str(direct_run["out"])
+    assert report["method"] == "direct" and report["scale"] == 4
+    assert report["texture_size"] == [16, 16] and report["device"].startswith("cpu")
+    rows = {row["method"]: row for row in report["results"]}
+    assert list(rows) == ["direct", "bicubic", "lanczos"]
+    assert rows["bicubic"]["gain_db"] == 0
+    for row in rows.values():
+        assert {"psnr_fg", "psnr_full", "ssim_full", "ssim_fg", "gain_db", "seconds"} <= set(row)
+        assert row["views"] == len(QUICK_VIEWS)
+    assert rows["direct"]["gain_db"] == pytest.approx(
+        rows["direct"]["psnr_fg"] - rows["bicubic"]["psnr_fg"]
+    )
+
+
+def test_steps_stop_the_loop(direct_run):
+    details = direct_run["report"]["details"]
+    assert details["steps"] == 2 and details["stopped_by"] == "steps"
+    assert details["validation_views"] == len(QUICK_VIEWS)
+
+
+def test_the_input_is_never_modified(direct_run):
+    assert direct_run["after"] == direct_run["before"]
+
+
+@pytest.mark.parametrize("suffix", [".obj", ".gltf"])
+def test_obj_input_to_other_formats(tmp_path, suffix, capsys):
+    source = tmp_path / "in"
+    source.mkdir()
+    save_mesh(tiny_mesh(), source / "tiny.obj")
+    before = folder_bytes(source)
+    out = tmp_path / f"small{suffix}"
+    assert (
+        main(["downsample", str(source / "tiny.obj"), "-o", str(out), "--method", "lanczos"]) == 0
+    )
+    assert folder_bytes(source) == before
+    expected = lanczos(load_mesh(source / "tiny.obj").materials[0].base_color_texture, 4)
+    np.testing.assert_array_equal(load_mesh(out).materials[0].base_color_texture, expected)
+    printed = capsys.readouterr().out
+    assert "lanczos" in printed and "bicubic" in printed and f"wrote {out}" in printed
+
+
+def test_force_replaces_an_existing_output(glb, tmp_path):
+    out = tmp_path / "small.glb"
+    out.write_bytes(b"old")
+    assert main(["downsample", str(glb), "-o", str(out), "--method", "box", "--force"]) == 0
+    assert load_mesh(out).materials[0].base_color_texture.shape == (16, 16, 3)
+
+
+@pytest.fixture
+def no_work(monkeypatch):
+    """Bad arguments must be refused before any heavy work starts."""
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("heavy work started before the arguments were checked")
+
+    monkeypatch.setattr(ds, "downsample", refuse)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--scale", "0"], "--scale 0: a scale must be a whole number >= 2"),
+        (["--scale", "1"], "whole number >= 2"),
+        (["--scale", "128"], "larger than the 64 x 64 texture"),
+        (["--method", "nope"], "unknown method; choose one of: box, bicubic, lanczos"),
+        (["-o", "OUT.png"], "use one of .glb, .gltf, .obj"),
+        (["-o", "MESH"], "refusing to overwrite the input file"),
+        (["-o", "MESH", "--force"], "refusing to overwrite the input file"),
+        (["-o", "EXISTING"], "already exists; pass --force"),
+        (["-o", "MISSING/out.glb"], "does not exist"),
+        (["--steps", "0"], "--steps 0: must be at least 1"),
+        (["--time-budget", "0"], "--time-budget 0"),
+        (["--report", "OUT"], "is the output mesh"),
+        (["--report", "MESH"], "refusing to overwrite the input file"),
+    ],
+)
+def test_bad_arguments_exit_2_before_work(glb, tmp_path, no_work, capsys, extra, message):
+    names = {
+        "MESH": str(glb),
+        "OUT": str(tmp_path / "out.glb"),
+        "OUT.png": str(tmp_path / "out.png"),
+        "EXISTING": str(tmp_path / "existing.glb"),
+        "MISSING/out.glb": str(tmp_path / "missing" / "out.glb"),
+    }
+    (tmp_path / "existing.glb").write_bytes(b"keep")
+    argv = ["downsample", str(glb), "-o", names["OUT"]] + [names.get(a, a) for a in extra]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("geoscaler: error:") and message in err, err
+    assert "Traceback" not in err
+    assert (tmp_path / "existing.glb").read_bytes() == b"keep"
+    assert not (tmp_path / "out.glb").exists()
+
+
+def test_a_fractional_scale_is_a_usage_error(glb, tmp_path, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["downsample", str(glb), "--scale", "1.5", "-o", str(tmp_path / "out.glb")])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "--scale: '1.5' is not a whole number" in err and "Traceback" not in err
+
+
+def test_an_unwritable_folder_is_refused(glb, tmp_path, no_work, monkeypatch, capsys):
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    real_access = os.access
+    monkeypatch.setattr(
+        files.os, "access", lambda p, mode: Path(p) != locked and real_access(p, mode)
+    )
+    assert main(["downsample", str(glb), "-o", str(locked / "out.glb")]) == 2
+    err = capsys.readouterr().err
+    assert "is not writable" in err and "Traceback" not in err
+
+
+def test_existing_side_files_of_an_obj_output_are_refused(glb, tmp_path, no_work, capsys):
+    (tmp_path / "out.mtl").write_text("keep")
+    assert main(["downsample", str(glb), "-o", str(tmp_path / "out.obj")]) == 2
+    err = capsys.readouterr().err
+    assert "out.mtl" in err and "--force" in err
+    assert (tmp_path / "out.mtl").read_text() == "keep"
+
+
+def interrupt_at_step(monkeypatch, step: int, times: int) -> None:
+    """Send SIGINT ``times`` times to this process when the loop reports ``step``."""
+    real = ds.Progress.on_event
+
+    def on_event(self, event):
+        real(self, event)
+        if event.phase == "step" and event.step == step:
+            for _ in range(times):
+                os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(ds.Progress, "on_event", on_event)
+
+
+def test_ctrl_c_stops_cleanly_and_writes_the_best_result(glb, tmp_path, monkeypatch, capsys):
+    interrupt_at_step(monkeypatch, 1, times=1)
+    out, report = tmp_path / "out.glb", tmp_path / "report.json"
+    argv = ["downsample", str(glb), "-o", str(out), "--steps", "50", "--report", str(report)]
+    assert main(argv) == 0
+    details = json.loads(report.read_text())["details"]
+    assert details["stopped_by"] == "stopped" and 1 <= details["steps"] < 50
+    assert load_mesh(out).materials[0].base_color_texture.shape == (16, 16, 3)
+    assert "Ctrl-C again to abort" in capsys.readouterr().err
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+
+
+def test_a_second_ctrl_c_aborts(glb, tmp_path, monkeypatch, capsys):
+    interrupt_at_step(monkeypatch, 1, times=2)
+    out = tmp_path / "out.glb"
+    assert main(["downsample", str(glb), "-o", str(out), "--steps", "50"]) == 130
+    assert not out.exists()
+    assert "interrupted" in capsys.readouterr().err
+
+
+def test_demo_builds_the_asset_and_writes_outputs(tmp_path, monkeypatch, capsys):
+    import geoscaler.procedural
+
+    monkeypatch.setattr(geoscaler.procedural, "demo_mesh", tiny_mesh)
+    monkeypatch.setattr(ds, "DEMO_TIME_BUDGET", 1e-3)  # stops before the first step
+    assert main(["demo", "--out", str(tmp_path / "demo"), "--device", "cpu"]) == 0
+    written = sorted(p.name for p in (tmp_path / "demo").iterdir())
+    assert written == [
+        "demo_comparison.png",
+        "geoscaler_demo.glb",
+        "geoscaler_demo_x4.glb",
+        "geoscaler_demo_x4.json",
+    ]
+    report = json.loads((tmp_path / "demo" / "geoscaler_demo_x4.json").read_text())
+    assert report["protocol"] == 1 and report["method"] == "direct"
+    assert report["details"]["steps"] == 0 and report["details"]["stopped_by"] == "time budget"
+    picture = Image.open(tmp_path / "demo" / "demo_comparison.png")
+    assert picture.size[0] == 3 * 256 + 2 * 4  # original | bicubic | direct
+    asset = (tmp_path / "demo" / "geoscaler_demo.glb").read_bytes()
+    assert main(["demo", "--out", str(tmp_path / "demo"), "--device", "cpu"]) == 0
+    printed = capsys.readouterr().out
+    assert "using the demo asset" in printed and "no optimisation step ran" in printed
+    assert (tmp_path / "demo" / "geoscaler_demo.glb").read_bytes() == asset
