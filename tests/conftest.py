@@ -27,3 +27,24 @@ def mesh_params():
     if not meshes:
         return [pytest.param(None, marks=pytest.mark.skip(reason=f"no meshes in {DATA_DIR}"))]
     return [pytest.param(path, id=path.parent.name) for path in meshes]
+
+
+def small_renderer(mesh, device=None):
+    """A renderer with 128-pixel images: 16 times cheaper than the protocol's 512."""
+    from geoscaler.render import Renderer
+
+    return Renderer(mesh, device, image_size=128)
+
+
+@pytest.fixture
+def one_view(monkeypatch):
+    """CLI runs on view 0 only, 128 pixels square (the real command: 60 views, 512 pixels)."""
+    from geoscaler import compare
+    from geoscaler.cameras import validation_cameras
+
+    def cameras(distance, views=None):
+        all_views = validation_cameras(distance)
+        return [all_views[i] for i in views] if views is not None else all_views[:1]
+
+    monkeypatch.setattr(compare, "protocol_cameras", cameras)
+    monkeypatch.setattr(compare, "Renderer", small_renderer)

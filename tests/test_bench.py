@@ -10,7 +10,6 @@ import shlex
 import pytest
 from PIL import Image
 
-import geoscaler.compare as compare
 from geoscaler.bench import (
     CSV_COLUMNS,
     METRIC_TITLES,
@@ -19,29 +18,10 @@ from geoscaler.bench import (
     paper_table,
     summarize,
 )
-from geoscaler.cameras import validation_cameras
 from geoscaler.cli import build_parser, main
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import save_mesh
 from geoscaler.procedural import demo_mesh
-from geoscaler.render import Renderer
-
-
-def small_renderer(mesh, device=None):
-    """A renderer with 128-pixel images: 16 times cheaper than the protocol's 512."""
-    return Renderer(mesh, device, image_size=128)
-
-
-@pytest.fixture
-def one_view(monkeypatch):
-    """CLI runs on view 0 only, 128 pixels square (the real command: 60 views, 512 pixels)."""
-
-    def cameras(distance, views=None):
-        all_views = validation_cameras(distance)
-        return [all_views[i] for i in views] if views is not None else all_views[:1]
-
-    monkeypatch.setattr(compare, "protocol_cameras", cameras)
-    monkeypatch.setattr(compare, "Renderer", small_renderer)
 
 
 @pytest.fixture(scope="module")

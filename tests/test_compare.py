@@ -8,10 +8,9 @@ import math
 import numpy as np
 import pytest
 import torch
+from conftest import small_renderer
 from PIL import Image
 
-import geoscaler.compare as compare
-from geoscaler.cameras import validation_cameras
 from geoscaler.cli import main
 from geoscaler.compare import (
     BYTES_PER_TEXEL,
@@ -29,7 +28,6 @@ from geoscaler.mesh import save_mesh
 from geoscaler.methods import METHODS, MethodResult, reference_textures
 from geoscaler.metrics import evaluate, ssim_fg, ssim_full
 from geoscaler.procedural import demo_mesh
-from geoscaler.render import Renderer
 
 VIEWS = [0, 31]  # two protocol views keep the tests fast; the CLI always scores all 60
 
@@ -200,23 +198,6 @@ def test_scoring_shortcut_on_black_background_is_exact(rows, cols):
 
 
 # --- the command line -----------------------------------------------------------------------
-
-
-def small_renderer(mesh, device=None):
-    """A renderer with 128-pixel images: 16 times cheaper than the protocol's 512."""
-    return Renderer(mesh, device, image_size=128)
-
-
-@pytest.fixture
-def one_view(monkeypatch):
-    """CLI runs on view 0 only, 128 pixels square (the real command: 60 views, 512 pixels)."""
-
-    def cameras(distance, views=None):
-        all_views = validation_cameras(distance)
-        return [all_views[i] for i in views] if views is not None else all_views[:1]
-
-    monkeypatch.setattr(compare, "protocol_cameras", cameras)
-    monkeypatch.setattr(compare, "Renderer", small_renderer)
 
 
 @pytest.fixture(scope="module")

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import small_renderer
 from PIL import Image
 
 from geoscaler import downsample as ds
@@ -19,14 +20,9 @@ from geoscaler.baselines import lanczos
 from geoscaler.cli import main
 from geoscaler.mesh import load_mesh, save_mesh
 from geoscaler.procedural import demo_mesh
-from geoscaler.render import Renderer
 
 QUICK_VIEWS = [0, 31]
 QUICK_OPTIMIZE = {"pool_views": 2, "views_per_step": 2, "validate_every": 1}
-
-
-def small_renderer(mesh, device=None):
-    return Renderer(mesh, device, image_size=128)
 
 
 def quick_hooks(patch) -> None:
