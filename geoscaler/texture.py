@@ -140,12 +140,11 @@ class MipLayout:
         x0, y0 = torch.floor(x), torch.floor(y)
         fx, fy = x - x0, y - y0
         x0, y0 = x0.long(), y0.long()
-        cols = torch.stack([torch.remainder(x0, width), torch.remainder(x0 + 1, width)])
-        rows = torch.stack([torch.remainder(y0, height), torch.remainder(y0 + 1, height)])
-        rows = self.offsets[level] + rows * width
-        index = torch.stack(
-            [rows[0] + cols[0], rows[0] + cols[1], rows[1] + cols[0], rows[1] + cols[1]]
-        )
+        col0, col1 = torch.remainder(x0, width), torch.remainder(x0 + 1, width)
+        base = self.offsets[level]
+        row0 = base + torch.remainder(y0, height) * width
+        row1 = base + torch.remainder(y0 + 1, height) * width
+        index = torch.stack([row0 + col0, row0 + col1, row1 + col0, row1 + col1])
         gx, gy = 1 - fx, 1 - fy
         weight = torch.stack([gx * gy, fx * gy, gx * fy, fx * fy])
         return index, weight
@@ -170,6 +169,14 @@ class MipLayout:
         sigma_max_sq = (0.5 * (frobenius + gap)).clamp_min(1e-30)
         return 0.5 * torch.log2(sigma_max_sq)
 
+    def levels(self, lod: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(fine, coarse, blend)``, each ``(N,)``: the two mip levels around ``lod``
+        (clamped to ``[0, num_levels - 1]``) and the weight of the coarser one."""
+        lod = lod.clamp(0.0, float(self.num_levels - 1))
+        fine = torch.floor(lod).long()
+        coarse = (fine + 1).clamp_max(self.num_levels - 1)
+        return fine, coarse, lod - fine.to(lod.dtype)
+
     def trilinear_taps(
         self, u: torch.Tensor, v: torch.Tensor, lod: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -182,10 +189,7 @@ class MipLayout:
         Returns:
             ``(index, weight)``, each ``(8, N)``: the finer level's 4 taps, then the coarser's.
         """
-        lod = lod.clamp(0.0, float(self.num_levels - 1))
-        fine = torch.floor(lod).long()
-        coarse = (fine + 1).clamp_max(self.num_levels - 1)
-        blend = lod - fine.to(lod.dtype)
+        fine, coarse, blend = self.levels(lod)
         fine_index, fine_weight = self.bilinear_taps(u, v, fine)
         coarse_index, coarse_weight = self.bilinear_taps(u, v, coarse)
         index = torch.cat([fine_index, coarse_index])
@@ -257,9 +261,17 @@ class MipTexture:
         return self.layout.level_of_detail(*derivatives)
 
     def trilinear(self, u: torch.Tensor, v: torch.Tensor, lod: torch.Tensor) -> torch.Tensor:
-        """``(C, N)`` trilinear samples at level of detail ``lod`` (clamped to the chain)."""
-        return gather(self.texels, *self.layout.trilinear_taps(u, v, lod))
+        """``(C, N)`` trilinear samples at level of detail ``lod`` (clamped to the chain).
+
+        The same sum as gathering :meth:`MipLayout.trilinear_taps`, evaluated as a blend of
+        two bilinear lookups, which avoids concatenating the taps.
+        """
+        fine, coarse, blend = self.layout.levels(lod)
+        return torch.lerp(self.bilinear(u, v, fine), self.bilinear(u, v, coarse), blend)
 
     def sample(self, footprint: UVFootprint) -> torch.Tensor:
         """GPU-style texture lookup of every sample of a footprint: ``(C, N)``."""
-        return gather(self.texels, *self.layout.taps(footprint))
+        lod = self.layout.level_of_detail(
+            footprint.du_dx, footprint.dv_dx, footprint.du_dy, footprint.dv_dy
+        )
+        return self.trilinear(footprint.u, footprint.v, lod)
