@@ -158,12 +158,7 @@ def _add_method_arguments(parser: argparse.ArgumentParser, scales: list[int]) ->
     parser.add_argument("--json", action="store_true", help="print JSON instead of tables")
     parser.add_argument("--out", help="folder to write results and pictures into")
     parser.add_argument("--force", action="store_true", help="replace existing files in --out")
-    parser.add_argument(
-        "--device",
-        choices=["auto", "cpu", "cuda"],
-        default="auto",
-        help="auto: CUDA when torch sees a GPU",
-    )
+    _add_device_argument(parser)
     parser.add_argument("--seed", type=int, default=0, help="seed of learned methods (default 0)")
     parser.add_argument("--steps", type=int, help="optimisation steps of learned methods")
     parser.add_argument(
@@ -180,6 +175,15 @@ def _scale_factor(text: str) -> int:
             f"{text!r} is not a whole number; a scale is a whole reduction factor >= 2, "
             "e.g. 4 (2048 -> 512) or 8"
         ) from None
+
+
+def _add_device_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--device",
+        choices=["auto", "cpu", "cuda"],
+        default="auto",
+        help="auto: CUDA when torch sees a GPU",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -201,12 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--distance", type=float, help="camera distance (default 2.4)")
     render.add_argument("-o", "--output", required=True, help="PNG file to write")
     render.add_argument("--force", action="store_true", help="replace an existing output")
-    render.add_argument(
-        "--device",
-        choices=["auto", "cpu", "cuda"],
-        default="auto",
-        help="auto: CUDA when torch sees a GPU",
-    )
+    _add_device_argument(render)
     render.set_defaults(run=cmd_render)
 
     downsample = commands.add_parser(
@@ -240,12 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
     downsample.add_argument(
         "--steps", type=int, help="maximum optimisation steps (default: the method's, 300)"
     )
-    downsample.add_argument(
-        "--device",
-        choices=["auto", "cpu", "cuda"],
-        default="auto",
-        help="auto: CUDA when torch sees a GPU",
-    )
+    _add_device_argument(downsample)
     downsample.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     downsample.add_argument(
         "--force", action="store_true", help="replace existing outputs (never the input)"
@@ -262,12 +256,7 @@ def build_parser() -> argparse.ArgumentParser:
         "(earlier demo outputs in DIR are replaced).",
     )
     demo.add_argument("--out", default=str(DEFAULT_DEMO_DIR), help="folder (default assets/)")
-    demo.add_argument(
-        "--device",
-        choices=["auto", "cpu", "cuda"],
-        default="auto",
-        help="auto: CUDA when torch sees a GPU",
-    )
+    _add_device_argument(demo)
     demo.set_defaults(run=cmd_demo)
 
     compare = commands.add_parser(

@@ -445,15 +445,9 @@ def tqdm_progress(bar: Any) -> Progress:
 
 def prepare_out_dir(out: str | Path, names: Sequence[str], force: bool, inputs: Sequence[Path]):
     """Create ``out`` if needed and check every output file in it before work starts."""
-    from geoscaler.files import check_output
+    from geoscaler.files import check_output, prepare_folder
 
-    folder = Path(out)
-    if folder.exists() and not folder.is_dir():
-        raise GeoscalerError(f"--out {folder}: is a file; give a folder for the outputs")
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise GeoscalerError(f"--out {folder}: cannot create the folder ({error})") from error
+    folder = prepare_folder(out)
     return [check_output(folder / name, force=force, inputs=inputs) for name in names]
 
 

@@ -46,7 +46,7 @@ from geoscaler.compare import (
 )
 from geoscaler.errors import GeoscalerError
 from geoscaler.evaluate import ViewSet
-from geoscaler.files import check_output, save_png, write_atomically
+from geoscaler.files import check_output, prepare_folder, save_png, write_atomically
 from geoscaler.mesh import TexturedMesh, load_mesh, save_mesh
 from geoscaler.methods import METHODS, MethodOptions, MethodResult, reference_textures, run_method
 from geoscaler.metrics import evaluate
@@ -652,13 +652,7 @@ def demo(
     """
     from geoscaler.procedural import demo_mesh
 
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise GeoscalerError(f"--out {out_dir}: is a file; give a folder for the demo")
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise GeoscalerError(f"--out {out_dir}: cannot create the folder ({error})") from error
+    out_dir = prepare_folder(out_dir)
     mesh_path = out_dir / DEMO_MESH_NAME
     if mesh_path.exists():
         say(f"using the demo asset {mesh_path}")

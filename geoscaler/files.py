@@ -39,6 +39,18 @@ def check_output(path: str | Path, *, force: bool, inputs: Iterable[Path] = ()) 
     return path
 
 
+def prepare_folder(path: str | Path, flag: str = "--out") -> Path:
+    """Create an output folder (and parents) or explain, as ``flag``, why it cannot be."""
+    folder = Path(path)
+    if folder.exists() and not folder.is_dir():
+        raise GeoscalerError(f"{flag} {folder}: is a file; give a folder for the outputs")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise GeoscalerError(f"{flag} {folder}: cannot create the folder ({error})") from error
+    return folder
+
+
 def write_atomically(path: str | Path, write: Callable[[Path], None]) -> Path:
     """Call ``write(tmp)`` on a temporary file beside ``path``, then rename it into place.
 
