@@ -356,6 +356,7 @@ def optimize(
 
     best = _Best()
     best.offer(_validate(val, model), 0, model)  # the start is a candidate too
+    validated_step = 0
     history: list[dict] = []
     step, loss_value, stopped_by = 0, math.nan, "steps"
     while step < config.steps:
@@ -395,6 +396,7 @@ def optimize(
         history.append({"step": step, "loss": loss_value, "elapsed": elapsed})
         if step % config.validate_every == 0 or step == config.steps:
             psnr = _validate(val, model)
+            validated_step = step
             improved = best.offer(psnr, step, model)
             history[-1]["validation_psnr_fg"] = psnr
             emit(
@@ -413,7 +415,7 @@ def optimize(
                 stopped_by = "plateau"
                 break
 
-    if best.step != step:  # stopped between validations: the current state may be better
+    if validated_step != step:  # stopped between validations: the current state may be better
         best.offer(_validate(val, model), step, model)
     if keeps_uvs:
         best.textures = [
