@@ -30,10 +30,12 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+import torch
 import trimesh
 from PIL import Image
 
 from .errors import GeoscalerError
+from .texture import linear_to_srgb, srgb_to_linear
 
 SUPPORTED_SUFFIXES = (".obj", ".gltf", ".glb")
 _FORMAT_NAMES = {".obj": "Wavefront OBJ", ".gltf": "glTF 2.0", ".glb": "binary glTF (GLB)"}
@@ -252,15 +254,6 @@ def _open_image(path: Path, owner: Path) -> Image.Image:
         ) from exc
 
 
-def _srgb_to_linear(values: np.ndarray) -> np.ndarray:
-    return np.where(values <= 0.04045, values / 12.92, ((values + 0.055) / 1.055) ** 2.4)
-
-
-def _linear_to_srgb(values: np.ndarray) -> np.ndarray:
-    values = np.clip(values, 0.0, 1.0)
-    return np.where(values <= 0.0031308, values * 12.92, 1.055 * values ** (1 / 2.4) - 0.055)
-
-
 def bake_color_factor(texture: np.ndarray, factor: np.ndarray) -> np.ndarray:
     """Multiply an sRGB texture by a linear RGB(A) factor, as a renderer would.
 
@@ -275,9 +268,10 @@ def bake_color_factor(texture: np.ndarray, factor: np.ndarray) -> np.ndarray:
     -------
     (H, W, C) uint8
     """
-    linear = _srgb_to_linear(texture[..., :3] / 255.0) * np.asarray(factor[:3])
+    encoded = torch.from_numpy(texture[..., :3] / 255.0)
+    linear = srgb_to_linear(encoded) * torch.as_tensor(np.asarray(factor[:3], dtype=np.float64))
     out = texture.copy()
-    out[..., :3] = np.round(_linear_to_srgb(linear) * 255)
+    out[..., :3] = np.round(linear_to_srgb(linear).numpy() * 255)
     if texture.shape[2] == 4:
         out[..., 3] = np.round(np.clip(texture[..., 3] * float(factor[3]), 0, 255))
     return out
