@@ -435,7 +435,7 @@ def command(args: Any) -> None:
     from geoscaler.files import save_png, write_atomically
 
     scales = check_scales(args.scale)
-    methods = parse_methods(args.methods)
+    methods = parse_methods(args.methods, args.variant)
     distances = check_distances(args.distance)
     options = method_options(args)
     meshes = find_meshes(args.paths)

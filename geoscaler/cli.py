@@ -135,6 +135,23 @@ def cmd_bench(args: argparse.Namespace) -> None:
     command(args)
 
 
+def _add_network_arguments(parser: argparse.ArgumentParser, variants: str) -> None:
+    """Flags of the GeoScaler network: variant(s), preset, VGG-19 weights."""
+    parser.add_argument("--variant", help=variants)
+    parser.add_argument(
+        "--preset",
+        choices=["cpu", "paper"],
+        help="network settings: cpu (default; measured on 2 cores) or paper (the paper's, "
+        "for a GPU: 15,000 steps)",
+    )
+    parser.add_argument(
+        "--vgg19",
+        metavar="PATH",
+        help="VGG-19 weights (torchvision's vgg19-dcbb9e9d.pth) for the paper preset's "
+        "perceptual loss; default: torchvision's cache if it has them, else the term is off",
+    )
+
+
 def _add_method_arguments(parser: argparse.ArgumentParser, scales: list[int]) -> None:
     """Flags shared by compare and bench: scales, methods, view sets, device, method settings."""
     default = " ".join(map(str, scales))
@@ -163,6 +180,11 @@ def _add_method_arguments(parser: argparse.ArgumentParser, scales: list[int]) ->
     parser.add_argument("--steps", type=int, help="optimisation steps of learned methods")
     parser.add_argument(
         "--time-budget", type=float, help="seconds a learned method may spend per mesh and scale"
+    )
+    _add_network_arguments(
+        parser,
+        "with geoscaler in --methods: comma-separated network variants to run, each a row "
+        "of its own, e.g. base,gcm,uvw,full (default: full)",
     )
 
 
@@ -229,7 +251,12 @@ def build_parser() -> argparse.ArgumentParser:
     downsample.add_argument(
         "--method",
         default="direct",
-        help="direct (default: optimised through the renderer), lanczos, bicubic, box or pbd",
+        help="direct (default: optimised through the renderer), geoscaler (the network), "
+        "lanczos, bicubic, box or pbd",
+    )
+    _add_network_arguments(
+        downsample,
+        "with --method geoscaler: base, gcm (GeoCoding), uvw (UVWarper) or full (default)",
     )
     downsample.add_argument(
         "--time-budget",

@@ -38,6 +38,8 @@ from geoscaler.methods import (
     METHODS,
     MethodOptions,
     MethodResult,
+    known_method,
+    known_methods,
     reference_textures,
     run_method,
 )
@@ -89,21 +91,35 @@ class Comparison:
     device: str = "cpu"
 
 
-def parse_methods(text: str | None) -> list[str]:
+def parse_methods(text: str | None, variants: str | None = None) -> list[str]:
     """Method names from ``"box,bicubic"`` (None: every registered method), checked.
+
+    ``variants`` (``"base,full"``) replaces ``geoscaler`` in the list by one entry per network
+    variant (``geoscaler-base, geoscaler-full``).
 
     Raises:
         GeoscalerError: an unknown or repeated name, or an empty list.
     """
-    if text is None:
-        return list(METHODS)
-    names = [name.strip() for name in text.split(",") if name.strip()]
+    names = list(METHODS) if text is None else [n.strip() for n in text.split(",") if n.strip()]
     if not names:
         raise GeoscalerError(f"--methods {text!r}: name at least one method")
-    known = ", ".join(METHODS)
     for name in names:
-        if name not in METHODS:
-            raise GeoscalerError(f"--methods: unknown method {name!r}; choose from: {known}")
+        if not known_method(name):
+            raise GeoscalerError(
+                f"--methods: unknown method {name!r}; choose from: {known_methods()}"
+            )
+    if variants is not None:
+        if "geoscaler" not in names:
+            raise GeoscalerError("--variant: list geoscaler in --methods to run its variants")
+        at = names.index("geoscaler")
+        labels = [f"geoscaler-{v.strip()}" for v in variants.split(",") if v.strip()]
+        for label in labels:
+            if not known_method(label):
+                raise GeoscalerError(
+                    f"--variant: unknown variant {label[len('geoscaler-') :]!r}; "
+                    "choose from base, gcm, uvw, full"
+                )
+        names[at : at + 1] = labels
     if len(set(names)) != len(names):
         raise GeoscalerError(f"--methods {text!r}: a method is listed twice")
     return names
@@ -427,8 +443,24 @@ def method_options(args: Any) -> MethodOptions:
     if args.time_budget is not None and not args.time_budget > 0:
         raise GeoscalerError(f"--time-budget {args.time_budget}: must be a positive number of s")
     return MethodOptions(
-        device=args.device, seed=args.seed, steps=args.steps, time_budget=args.time_budget
+        device=args.device,
+        seed=args.seed,
+        steps=args.steps,
+        time_budget=args.time_budget,
+        extra=network_extra(args),
     )
+
+
+def network_extra(args: Any) -> dict[str, Any]:
+    """The network's settings from ``--preset`` and ``--vgg19`` (absent flags: none)."""
+    extra = {}
+    if getattr(args, "preset", None) is not None:
+        extra["preset"] = args.preset
+    if getattr(args, "vgg19", None) is not None:
+        if not Path(args.vgg19).is_file():
+            raise GeoscalerError(f"--vgg19 {args.vgg19}: no such file")
+        extra["vgg19"] = args.vgg19
+    return extra
 
 
 def tqdm_progress(bar: Any) -> Progress:
@@ -459,7 +491,7 @@ def command(args: Any) -> None:
     from geoscaler.mesh import load_mesh
 
     scales = check_scales(args.scale)
-    methods = parse_methods(args.methods)
+    methods = parse_methods(args.methods, args.variant)
     distances = check_distances(args.distance)
     options = method_options(args)
     mesh_path = Path(args.mesh)

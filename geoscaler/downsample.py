@@ -40,6 +40,7 @@ from geoscaler.compare import (
     dumps,
     format_table,
     json_safe,
+    network_extra,
     protocol_cameras,
     score_outputs,
     texture_facts,
@@ -48,7 +49,14 @@ from geoscaler.errors import GeoscalerError
 from geoscaler.evaluate import ViewSet
 from geoscaler.files import check_output, prepare_folder, save_png, write_atomically
 from geoscaler.mesh import TexturedMesh, load_mesh, save_mesh
-from geoscaler.methods import METHODS, MethodOptions, MethodResult, reference_textures, run_method
+from geoscaler.methods import (
+    MethodOptions,
+    MethodResult,
+    known_method,
+    known_methods,
+    reference_textures,
+    run_method,
+)
 from geoscaler.metrics import evaluate
 from geoscaler.optimize import Controller, ProgressEvent, ViewCache
 from geoscaler.render import Renderer, resolve_device
@@ -94,9 +102,10 @@ def is_learned(method: str) -> bool:
 
 def check_method(method: str) -> str:
     """The name of a registered method, else a GeoscalerError listing the known ones."""
-    if method not in METHODS:
-        known = ", ".join(METHODS)
-        raise GeoscalerError(f"--method {method!r}: unknown method; choose one of: {known}")
+    if not known_method(method):
+        raise GeoscalerError(
+            f"--method {method!r}: unknown method; choose one of: {known_methods()}"
+        )
     return method
 
 
@@ -115,8 +124,12 @@ def check_options(
     seed: int = 0,
     steps: int | None = None,
     time_budget: float | None = None,
+    extra: dict[str, Any] | None = None,
 ) -> MethodOptions:
-    """:class:`MethodOptions` for ``method``, checked; learned methods get the default budget."""
+    """:class:`MethodOptions` for ``method``, checked; learned methods get the default budget.
+
+    ``extra``: method settings such as the network's variant, preset and VGG-19 weights.
+    """
     if steps is not None and steps < 1:
         raise GeoscalerError(f"--steps {steps}: must be at least 1")
     if time_budget is not None and not (math.isfinite(time_budget) and time_budget > 0):
@@ -124,7 +137,9 @@ def check_options(
     resolve_device(device)  # no CUDA -> a clear error now, not after loading
     if time_budget is None and is_learned(method):
         time_budget = DEFAULT_TIME_BUDGET
-    return MethodOptions(device=device, seed=seed, steps=steps, time_budget=time_budget)
+    return MethodOptions(
+        device=device, seed=seed, steps=steps, time_budget=time_budget, extra=dict(extra or {})
+    )
 
 
 def check_output_name(output: str | Path, mesh_path: Path, force: bool) -> Path:
@@ -627,7 +642,20 @@ def run_job(job: Job, progress: bool = True, say=print) -> tuple[Downsampled, di
 
 def command(args: Any) -> None:
     """``geoscaler downsample``: check, run, write, report."""
-    options = check_options(args.method, args.device, args.seed, args.steps, args.time_budget)
+    extra = network_extra(args)
+    if args.variant is not None:
+        from geoscaler.nn.network import VARIANTS
+
+        if args.method != "geoscaler":
+            raise GeoscalerError("--variant: only --method geoscaler has variants")
+        if args.variant not in VARIANTS:
+            raise GeoscalerError(
+                f"--variant {args.variant!r}: choose one of {', '.join(VARIANTS)}"
+            )
+        extra["variant"] = args.variant
+    options = check_options(
+        args.method, args.device, args.seed, args.steps, args.time_budget, extra
+    )
     job = prepare(args.mesh, args.output, args.scale, args.method, options, args.force, args.report)
     run_job(job)
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -82,6 +82,9 @@ def _baseline(name: str) -> Method:
 
 
 METHODS: dict[str, Method] = {name: _baseline(name) for name in BASELINES}
+# Names that run a registered method with fixed settings, e.g. "geoscaler-base" is "geoscaler"
+# with extra {"variant": "base"}; tables list them as methods of their own.
+ALIASES: dict[str, tuple[str, dict[str, Any]]] = {}
 
 
 def register(name: str, method: Method) -> None:
@@ -89,18 +92,37 @@ def register(name: str, method: Method) -> None:
     METHODS[name] = method
 
 
+def register_alias(name: str, method: str, extra: dict[str, Any]) -> None:
+    """Make ``name`` run ``method`` with ``extra`` merged into its options."""
+    ALIASES[name] = (method, extra)
+
+
+def known_method(name: str) -> bool:
+    """Whether ``name`` is a registered method or an alias of one."""
+    return name in METHODS or name in ALIASES
+
+
+def known_methods() -> str:
+    """Every name :func:`run_method` accepts, for error messages."""
+    return ", ".join([*METHODS, *ALIASES])
+
+
 def run_method(
     name: str, mesh: TexturedMesh, scale: int, options: MethodOptions | None = None
 ) -> MethodResult:
-    """Run a registered method and time it, wall clock, set-up included."""
-    if name not in METHODS:
-        known = ", ".join(sorted(METHODS))
-        raise GeoscalerError(f"unknown method {name!r}; choose one of: {known}")
+    """Run a registered method (or alias) and time it, wall clock, set-up included."""
+    if not known_method(name):
+        raise GeoscalerError(f"unknown method {name!r}; choose one of: {known_methods()}")
+    options = options or MethodOptions()
+    if name in ALIASES:
+        name, extra = ALIASES[name]
+        options = replace(options, extra={**options.extra, **extra})
     start = time.perf_counter()
-    result = METHODS[name](mesh, scale, options or MethodOptions())
+    result = METHODS[name](mesh, scale, options)
     result.seconds = time.perf_counter() - start
     return result
 
 
 # Learned methods register themselves; imported last because they build on this module.
 from geoscaler import direct as _direct  # noqa: E402, F401
+from geoscaler.nn import method as _network  # noqa: E402, F401

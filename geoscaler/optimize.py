@@ -254,20 +254,41 @@ class ViewCache:
         textures: Sequence[torch.Tensor | None],
         uvs: torch.Tensor | None,
         ssim_weight: float,
+        perceptual: PerceptualTerm | None = None,
     ) -> torch.Tensor:
         """:func:`rendering_loss` of a candidate in cached view ``view``."""
         image = self.render(view, textures, uvs)
         return rendering_loss(
-            image, self.views.references[view], self.views.foreground[view], ssim_weight
+            image,
+            self.views.references[view],
+            self.views.foreground[view],
+            ssim_weight,
+            perceptual,
         )
 
 
+@dataclass
+class PerceptualTerm:
+    """``weight * loss(image, reference)`` on the object's crop of two ``(H, W, 3)`` images."""
+
+    loss: Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+    weight: float
+
+
 def rendering_loss(
-    image: torch.Tensor, reference: torch.Tensor, foreground: torch.Tensor, ssim_weight: float
+    image: torch.Tensor,
+    reference: torch.Tensor,
+    foreground: torch.Tensor,
+    ssim_weight: float,
+    perceptual: PerceptualTerm | None = None,
 ) -> torch.Tensor:
-    """``mean_fg (image - reference)^2 + ssim_weight (1 - SSIM_fg)`` for one view (sRGB)."""
+    """The training loss of one view, on sRGB images:
+
+    ``mean_fg (image - reference)^2 + ssim_weight (1 - SSIM_fg) + perceptual`` (the last two
+    on the crop around the object).
+    """
     mse = (image - reference).square().mean(-1)[foreground].mean()
-    if ssim_weight == 0:
+    if ssim_weight == 0 and perceptual is None:
         return mse
     rows = torch.nonzero(foreground.any(1)).squeeze(1)
     cols = torch.nonzero(foreground.any(0)).squeeze(1)
@@ -277,8 +298,13 @@ def rendering_loss(
     if r1 - r0 < 11 or c1 - c0 < 11:
         return mse
     crop = (slice(r0, r1), slice(c0, c1))
-    ssim = SSIMLoss()(image[crop][None], reference[crop][None], foreground[crop][None])
-    return mse + ssim_weight * ssim
+    loss = mse
+    if ssim_weight != 0:
+        ssim = SSIMLoss()(image[crop][None], reference[crop][None], foreground[crop][None])
+        loss = loss + ssim_weight * ssim
+    if perceptual is not None:
+        loss = loss + perceptual.weight * perceptual.loss(image[crop], reference[crop])
+    return loss
 
 
 @dataclass
@@ -303,6 +329,7 @@ def optimize(
     controller: Controller | None = None,
     validation: ViewSet | None = None,
     keeps_uvs: bool = True,
+    perceptual: PerceptualTerm | None = None,
 ) -> OptimizeResult:
     """Optimise ``model`` so that renders of its candidate match renders of the original.
 
@@ -314,6 +341,7 @@ def optimize(
         controller: lets another thread pause, resume or stop the loop.
         validation: cached validation views (default: built here for the protocol's set Q).
         keeps_uvs: the model never changes UVs, so texture taps can be cached.
+        perceptual: an extra loss term (the network's VGG-19 term).
 
     Returns:
         The best validated candidate (detached) and the run's history.
@@ -370,7 +398,9 @@ def optimize(
         views = torch.randperm(len(train), generator=generator)[: config.views_per_step]
         optimizer.zero_grad(set_to_none=True)
         textures, uvs = model.candidate()
-        losses = [train.loss(i, textures, uvs, config.ssim_weight) for i in views.tolist()]
+        losses = [
+            train.loss(i, textures, uvs, config.ssim_weight, perceptual) for i in views.tolist()
+        ]
         loss = torch.stack(losses).mean()
         loss.backward()
         for group in optimizer.param_groups:

@@ -1,0 +1,236 @@
+"""Method ``geoscaler``: the paper's network, trained per mesh through the protocol renderer.
+
+The network maps the texture and its geometry maps to the small texture (and, for the
+warping variants, new UVs); its weights are the parameters of the shared optimisation loop
+(:func:`geoscaler.optimize.optimize`), exactly as the texels are for ``direct``.
+
+Presets:
+
+* ``paper``: the paper's settings (C1 = C2 = 64, convolutions and pooling from the input size,
+  texture = sigmoid(decoder), AdamW at 5e-3 with 1,000 warm-up steps and cosine decay,
+  15,000 steps, K = 4 views, L2 + 0.1 (1 - SSIM) + 0.01 VGG-19 when weights are given).
+  Meant for a GPU.
+* ``cpu``: what the 2-core CPU affords, each choice measured (README, "The network"):
+  C1 = C2 = 32; the encoder goes down to the target size by space-to-depth instead of
+  full-size convolutions; the decoder adds a residual to the Lanczos texture (warm start: the
+  run starts where ``direct`` starts); fewer steps at a higher learning rate; no SSIM or VGG.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+import torch
+from PIL import Image
+
+from geoscaler.baselines import lanczos, target_size
+from geoscaler.errors import GeoscalerError
+from geoscaler.mesh import TexturedMesh
+from geoscaler.methods import (
+    MethodOptions,
+    MethodResult,
+    reference_textures,
+    register,
+    register_alias,
+)
+from geoscaler.nn.geometry import (
+    check_square,
+    geometry_maps,
+    mesh_graph,
+    uv_raster,
+    vertex_materials,
+)
+from geoscaler.nn.network import (
+    VARIANTS,
+    GeoScalerNet,
+    MeshGeometry,
+    NetworkConfig,
+    parameter_count,
+)
+from geoscaler.nn.perceptual import perceptual_loss
+from geoscaler.optimize import OptimizeConfig, PerceptualTerm, optimize
+from geoscaler.render import Renderer
+from geoscaler.texture import linear_to_texture, texture_to_linear
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named set of architecture and training settings."""
+
+    network: NetworkConfig
+    optimize: dict[str, Any] = field(default_factory=dict)
+    perceptual_weight: float = 0.0
+
+
+PRESETS = {
+    "paper": Preset(
+        NetworkConfig(channels=64, graph_channels=64, stem="pool", residual=False),
+        {
+            "steps": 15_000,
+            "lr": 5e-3,
+            "weight_decay": 0.01,
+            "warmup_steps": 1_000,
+            "views_per_step": 4,
+            "pool_views": 240,
+            "ssim_weight": 0.1,
+            "validate_every": 500,
+        },
+        perceptual_weight=0.01,
+    ),
+    "cpu": Preset(
+        NetworkConfig(
+            channels=32, graph_channels=32, warp_channels=8, stem="unshuffle", residual=True
+        ),
+        {
+            "steps": 300,
+            "lr": 2e-3,
+            "weight_decay": 0.0,
+            "warmup_steps": 20,
+            "views_per_step": 4,
+            "ssim_weight": 0.0,
+            "validate_every": 100,
+        },
+    ),
+}
+DEFAULT_PRESET = "cpu"
+DEFAULT_VARIANT = "full"
+
+
+class NetworkModel:
+    """The loop's view of the network: its weights are the parameters, its output the
+    candidate.
+
+    Args:
+        network: the network (on the run's device).
+        inputs: per material ``(10, H, W)`` encoder input (None: untextured).
+        geometry: the mesh as the network sees it.
+        bases: per material ``(3, h, w)`` linear base textures for residual networks.
+    """
+
+    def __init__(
+        self,
+        network: GeoScalerNet,
+        inputs: list[torch.Tensor | None],
+        geometry: MeshGeometry,
+        bases: list[torch.Tensor | None] | None,
+    ):
+        self.network = network
+        self.inputs = inputs
+        self.geometry = geometry
+        self.bases = bases
+
+    def parameters(self) -> list[torch.Tensor]:
+        return list(self.network.parameters())
+
+    def candidate(self) -> tuple[list[torch.Tensor | None], torch.Tensor | None]:
+        output = self.network(self.inputs, self.geometry, self.bases)
+        return output.textures, output.uvs
+
+    def project(self) -> None:
+        """Nothing to clamp: the network's outputs are valid by construction."""
+
+
+def network_inputs(
+    mesh: TexturedMesh, scale: int, device: torch.device
+) -> tuple[list[torch.Tensor | None], list[torch.Tensor | None], list[np.ndarray | None]]:
+    """Per material: the encoder input, the output texture's UV raster, the Lanczos start.
+
+    The input is the protocol's reference map (resized with Lanczos to ``scale`` times the
+    output size when the two do not divide) with its geometry maps: ``(10, sH, sW)``.
+    """
+    inputs, rasters, starts = [], [], []
+    for index, texture in enumerate(reference_textures(mesh)):
+        if texture is None:
+            inputs.append(None), rasters.append(None), starts.append(None)
+            continue
+        height, _ = target_size(*texture.shape[:2], scale)
+        size = height * scale
+        if texture.shape[0] != size:
+            texture = np.asarray(Image.fromarray(texture).resize((size, size), Image.LANCZOS))
+        srgb = torch.from_numpy(texture[..., :3].astype(np.float32) / 255).permute(2, 0, 1)
+        maps = geometry_maps(uv_raster(mesh, index, size), mesh)
+        inputs.append(torch.cat([srgb, maps]).to(device))
+        rasters.append(uv_raster(mesh, index, height, device))
+        starts.append(lanczos(texture, scale))
+    return inputs, rasters, starts
+
+
+def build_network(
+    mesh: TexturedMesh, scale: int, config: NetworkConfig, device: torch.device
+) -> NetworkModel:
+    """The network and everything it reads of ``mesh``, ready to train."""
+    check_square(mesh)
+    inputs, rasters, starts = network_inputs(mesh, scale, device)
+    geometry = MeshGeometry(
+        torch.from_numpy(np.asarray(mesh.uvs, np.float32)).to(device),
+        torch.from_numpy(np.asarray(mesh.faces, np.int64)).to(device),
+        torch.from_numpy(vertex_materials(mesh)).to(device),
+        mesh_graph(mesh, device),
+        rasters,
+    )
+    bases = None
+    if config.residual:
+        bases = [
+            None if s is None else texture_to_linear(s, device).permute(2, 0, 1) for s in starts
+        ]
+    network = GeoScalerNet(config, scale).to(device)
+    return NetworkModel(network, inputs, geometry, bases)
+
+
+def geoscaler_network(mesh: TexturedMesh, scale: int, options: MethodOptions) -> MethodResult:
+    """Train the GeoScaler network on ``mesh`` and return its texture (and UVs).
+
+    ``options.extra``: ``"variant"`` (base, gcm, uvw, full), ``"preset"`` (cpu, paper),
+    ``"vgg19"`` (path of VGG-19 weights for the perceptual term), ``"optimize"`` overrides.
+    """
+    variant = options.extra.get("variant") or DEFAULT_VARIANT
+    preset_name = options.extra.get("preset") or DEFAULT_PRESET
+    if variant not in VARIANTS:
+        raise GeoscalerError(f"variant {variant!r}: choose one of {', '.join(VARIANTS)}")
+    if preset_name not in PRESETS:
+        raise GeoscalerError(f"preset {preset_name!r}: choose one of {', '.join(PRESETS)}")
+    preset = PRESETS[preset_name]
+    renderer = Renderer(mesh, options.device)
+    torch.manual_seed(options.seed)
+    config = replace(preset.network, variant=variant)
+    model = build_network(mesh, scale, config, renderer.device)
+
+    perceptual, perceptual_note = None, "off in this preset"
+    if preset.perceptual_weight > 0:
+        loss, perceptual_note = perceptual_loss(options.extra.get("vgg19"), renderer.device)
+        perceptual = None if loss is None else PerceptualTerm(loss, preset.perceptual_weight)
+
+    settings = {**preset.optimize, **options.extra.get("optimize", {})}
+    settings["steps"] = options.steps or settings.get("steps", 300)
+    loop = OptimizeConfig(time_budget=options.time_budget, seed=options.seed, **settings)
+    result = optimize(
+        renderer,
+        model,
+        loop,
+        on_event=options.on_event,
+        controller=options.extra.get("controller"),
+        validation=options.extra.get("validation_views"),
+        keeps_uvs=not config.uv_warper,
+        perceptual=perceptual,
+    )
+    textures = [None if t is None else linear_to_texture(t) for t in result.textures]
+    uvs = None if result.uvs is None else result.uvs.detach().cpu().numpy().astype(np.float32)
+    details = {
+        "device": str(renderer.device),
+        "variant": variant,
+        "preset": preset_name,
+        "parameters": parameter_count(model.network),
+        "perceptual": perceptual_note,
+        "steps": result.steps,
+        "best_step": result.best_step,
+        "validation_psnr_fg": result.best_psnr,
+        "stopped_by": result.stopped_by,
+    }
+    return MethodResult(textures, uvs, details=details)
+
+
+register("geoscaler", geoscaler_network)
+for _variant in VARIANTS:
+    register_alias(f"geoscaler-{_variant}", "geoscaler", {"variant": _variant})
