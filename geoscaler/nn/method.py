@@ -11,7 +11,7 @@ Presets:
   15,000 steps, K = 4 views, L2 + 0.1 (1 - SSIM) + 0.01 VGG-19 when weights are given).
   Meant for a GPU.
 * ``cpu``: what the 2-core CPU affords, each choice measured (README, "The network"):
-  C1 = C2 = 32; the encoder goes down to the target size by space-to-depth instead of
+  C1 = C2 = 16; the encoder goes down to the target size by space-to-depth instead of
   full-size convolutions; the decoder adds a residual to the Lanczos texture (warm start: the
   run starts where ``direct`` starts); fewer steps at a higher learning rate; no SSIM or VGG.
 """
@@ -81,11 +81,11 @@ PRESETS = {
     ),
     "cpu": Preset(
         NetworkConfig(
-            channels=32, graph_channels=32, warp_channels=8, stem="unshuffle", residual=True
+            channels=16, graph_channels=16, warp_channels=4, stem="unshuffle", residual=True
         ),
         {
             "steps": 300,
-            "lr": 2e-3,
+            "lr": 5e-3,
             "weight_decay": 0.0,
             "warmup_steps": 20,
             "views_per_step": 4,
