@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
+from conftest import small_renderer
 
 from geoscaler.cameras import validation_cameras
 from geoscaler.errors import GeoscalerError
@@ -69,6 +70,14 @@ def split_at_every_corner(mesh: TexturedMesh) -> TexturedMesh:
 @pytest.fixture(scope="module")
 def small_mesh():
     return demo_mesh(subdivisions=4, texture_size=64)
+
+
+@pytest.fixture
+def small_images(monkeypatch):
+    """The method trains on 128-pixel views (the protocol's: 512)."""
+    import geoscaler.nn.method
+
+    monkeypatch.setattr(geoscaler.nn.method, "Renderer", small_renderer)
 
 
 # ----------------------------------------------------------------------------- shapes
@@ -414,7 +423,7 @@ def test_torchvisions_cache_is_used_when_it_holds_the_weights(monkeypatch, tmp_p
 
 
 @pytest.mark.parametrize("name", ["geoscaler-base", "geoscaler-uvw"])
-def test_the_method_returns_8bit_textures_and_valid_uvs(small_mesh, name):
+def test_the_method_returns_8bit_textures_and_valid_uvs(small_mesh, small_images, name):
     options = MethodOptions(device="cpu", steps=2, extra={"optimize": {"pool_views": 2}})
     options.extra["validation_views"] = ViewSet(
         Renderer(small_mesh, "cpu", image_size=64), validation_cameras()[:2]
@@ -444,3 +453,45 @@ def test_the_model_exposes_the_network_weights(small_mesh):
     model = build_network(small_mesh, 4, NetworkConfig("gcm", 8, 8), CPU)
     assert isinstance(model, NetworkModel)
     assert len(model.parameters()) == len(list(model.network.parameters()))
+
+
+def test_the_paper_preset_trains_with_the_perceptual_term_from_a_file(
+    small_mesh, small_images, vgg_file
+):
+    options = MethodOptions(
+        device="cpu",
+        steps=1,
+        extra={
+            "preset": "paper",
+            "vgg19": str(vgg_file[0]),
+            "optimize": {"pool_views": 1, "validate_every": 1},
+            "validation_views": ViewSet(
+                Renderer(small_mesh, "cpu", image_size=64), validation_cameras()[:1]
+            ),
+        },
+    )
+    result = run_method("geoscaler-gcm", small_mesh, 4, options)
+    assert result.details["perceptual"] == f"VGG-19 from {vgg_file[0]}"
+    assert result.details["preset"] == "paper" and result.details["steps"] == 1
+    assert result.textures[0].shape == (16, 16, 3)
+
+
+def test_unknown_variants_and_presets_are_refused(small_mesh):
+    for extra, message in [({"variant": "tiny"}, "variant 'tiny'"), ({"preset": "x"}, "preset")]:
+        with pytest.raises(GeoscalerError, match=message):
+            run_method("geoscaler", small_mesh, 4, MethodOptions(device="cpu", extra=extra))
+
+
+# ----------------------------------------------------------------------------- command line
+
+
+def test_variants_become_rows_of_their_own_in_compare_and_bench():
+    from geoscaler.compare import parse_methods
+
+    names = parse_methods("bicubic,geoscaler,direct", "base,full")
+    assert names == ["bicubic", "geoscaler-base", "geoscaler-full", "direct"]
+    assert parse_methods("geoscaler-uvw") == ["geoscaler-uvw"]
+    with pytest.raises(GeoscalerError, match="list geoscaler in --methods"):
+        parse_methods("bicubic", "base")
+    with pytest.raises(GeoscalerError, match="unknown variant 'big'"):
+        parse_methods("geoscaler", "big")
