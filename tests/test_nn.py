@@ -439,6 +439,7 @@ def test_the_method_returns_8bit_textures_and_valid_uvs(small_mesh, small_images
         areas = signed_areas(torch.from_numpy(result.uvs), torch.from_numpy(small_mesh.faces))
         before = signed_areas(torch.from_numpy(small_mesh.uvs), torch.from_numpy(small_mesh.faces))
         assert torch.all(areas * before > 0)
+        assert result.details["uv_shift_texels"]["max"] <= MAX_OFFSET * 2**0.5 + 1e-4
     else:
         assert result.uvs is None
 

@@ -216,7 +216,6 @@ def geoscaler_network(mesh: TexturedMesh, scale: int, options: MethodOptions) ->
         perceptual=perceptual,
     )
     textures = [None if t is None else linear_to_texture(t) for t in result.textures]
-    uvs = None if result.uvs is None else result.uvs.detach().cpu().numpy().astype(np.float32)
     details = {
         "device": str(renderer.device),
         "variant": variant,
@@ -228,7 +227,22 @@ def geoscaler_network(mesh: TexturedMesh, scale: int, options: MethodOptions) ->
         "validation_psnr_fg": result.best_psnr,
         "stopped_by": result.stopped_by,
     }
+    uvs = None if result.uvs is None else result.uvs.detach().cpu().numpy().astype(np.float32)
+    if uvs is not None:
+        details["uv_shift_texels"] = uv_shift(mesh, uvs, textures)
     return MethodResult(textures, uvs, details=details)
+
+
+def uv_shift(
+    mesh: TexturedMesh, uvs: np.ndarray, textures: list[np.ndarray | None]
+) -> dict[str, float]:
+    """Mean and largest distance the warp moved a vertex, in texels of its output texture."""
+    sizes = np.array([[0, 0] if t is None else t.shape[1::-1] for t in textures], np.float64)
+    materials = vertex_materials(mesh)
+    used = materials >= 0
+    texels = (uvs - mesh.uvs)[used] * sizes[materials[used]]
+    distance = np.linalg.norm(texels, axis=1)
+    return {"mean": float(distance.mean()), "max": float(distance.max())}
 
 
 register("geoscaler", geoscaler_network)
