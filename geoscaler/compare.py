@@ -14,8 +14,9 @@ from __future__ import annotations
 import json
 import math
 import sys
+import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +24,7 @@ import numpy as np
 import torch
 
 from geoscaler import PROTOCOL
-from geoscaler.baselines import target_size
+from geoscaler.baselines import BASELINES, target_size
 from geoscaler.cameras import (
     VALIDATION_DISTANCE,
     VALIDATION_VIEWS,
@@ -285,14 +286,26 @@ def compare_mesh(
             progress(what, done, total)
         done += 1
 
-    outputs = run_methods(mesh, scales, to_run, options, step)
     renderer = renderer or Renderer(mesh, options.device)
+    q, q_seconds = None, 0.0
+    if any(name not in BASELINES for name in to_run):  # learned methods validate on Q
+        start = time.perf_counter()
+        q = ViewSet(renderer, protocol_cameras(VALIDATION_DISTANCE, views))
+        q_seconds = time.perf_counter() - start
+        options = replace(options, extra={**options.extra, "validation_views": q})
+    outputs = run_methods(mesh, scales, to_run, options, step)
+    for (name, _), result in outputs.items():
+        if name not in BASELINES:  # each would have cached Q on its own
+            result.seconds += q_seconds
     cameras_by_distance = {d: protocol_cameras(d, views) for d in distances}
     comparison = Comparison([], outputs, device=str(renderer.device))
     comparison.view_indices = list(range(VALIDATION_VIEWS) if views is None else views)
     for distance in distances:
         step(f"rendering the views at {distance:g}")
-        view_set = ViewSet(renderer, cameras_by_distance[distance])
+        if distance == VALIDATION_DISTANCE and q is not None:
+            view_set, q = q, None
+        else:
+            view_set = ViewSet(renderer, cameras_by_distance[distance])
         comparison.foreground[distance] = view_set.foreground.sum(dim=(1, 2)).cpu().numpy()
         rows = score_outputs(view_set, outputs, distance, step)
         del view_set

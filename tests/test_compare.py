@@ -255,3 +255,19 @@ def test_cli_refuses_existing_outputs_without_force(glb, tmp_path, capsys):
     assert main(["compare", str(glb), "--methods", "box", "--out", str(out)]) == 2
     assert "--force" in capsys.readouterr().err
     assert (out / "small_compare.json").read_text() == "keep"
+
+
+def test_learned_methods_validate_on_the_views_compare_scores_on(one_view, monkeypatch):
+    import geoscaler.optimize
+    from geoscaler.methods import MethodOptions
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the method cached its own validation views")
+
+    monkeypatch.setattr(geoscaler.optimize, "validation_cameras", refuse)
+    options = MethodOptions(device="cpu", steps=1, extra={"optimize": {"pool_views": 1}})
+    comparison = compare_mesh(
+        demo_mesh(subdivisions=4, texture_size=64), [4], ["bicubic", "direct"], options=options
+    )
+    assert [row["method"] for row in comparison.rows] == ["bicubic", "direct"]
+    assert comparison.outputs["direct", 4].details["steps"] == 1
