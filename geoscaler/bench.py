@@ -415,6 +415,9 @@ def command_line(args: Any) -> str:
     parts = ["geoscaler", "bench", *args.paths, "--scale", *map(str, args.scale)]
     if args.methods:
         parts += ["--methods", args.methods]
+    for flag in ("variant", "preset", "vgg19"):
+        if getattr(args, flag, None) is not None:
+            parts += [f"--{flag}", getattr(args, flag)]
     if list(args.distance) != [VALIDATION_DISTANCE]:
         parts += ["--distance", *(f"{d:g}" for d in args.distance)]
     if args.device != "auto":

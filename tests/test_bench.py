@@ -172,3 +172,9 @@ def test_command_line_reproduces_the_arguments():
     line = command_line(build_parser().parse_args(argv))
     assert line == "geoscaler bench 'my data' --scale 4 8 --methods box,pbd --out o"
     assert shlex.split(line)[1:] == argv
+
+
+def test_command_line_keeps_the_network_flags():
+    argv = ["bench", "d", "--scale", "4", "--methods", "geoscaler", "--variant", "base,full"]
+    argv += ["--preset", "cpu"]
+    assert shlex.split(command_line(build_parser().parse_args(argv)))[1:] == argv
