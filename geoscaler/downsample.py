@@ -399,6 +399,7 @@ def downsample(
     progress: Progress | None = None,
     controller: Controller | None = None,
     views: Sequence[int] | None = None,
+    q: ViewSet | None = None,
 ) -> Downsampled:
     """Run ``method`` on ``mesh`` at ``scale`` and score it, bicubic and Lanczos on Q.
 
@@ -411,13 +412,16 @@ def downsample(
         progress: the bar to drive (None: silent).
         controller: stops the method early (the best state so far is returned).
         views: protocol view indices standing for Q (None: all 60, the protocol).
+        q: Q already rasterised for ``views`` (e.g. by the app, which scores bicubic on it
+            before the method starts); its caching is then not counted in the method's time.
     """
     options = options or check_options(method)
     controller = controller or Controller()
     start = time.perf_counter()
-    renderer = RENDERER(mesh, options.device)
     cameras = protocol_cameras(VALIDATION_DISTANCE, views)
-    q = ViewSet(renderer, cameras, progress.caching_q if progress else None)
+    if q is None:
+        q = ViewSet(RENDERER(mesh, options.device), cameras, progress.caching_q if progress else None)
+    renderer = q.renderer
     q_seconds = time.perf_counter() - start
 
     learned = is_learned(method)
