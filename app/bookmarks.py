@@ -10,9 +10,10 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from .orbit import Orbit
 from geoscaler.errors import GeoscalerError
 from geoscaler.files import write_atomically
+
+from .orbit import Orbit
 
 
 @dataclass

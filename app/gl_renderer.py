@@ -143,8 +143,14 @@ class Target:
         return np.ascontiguousarray(image), np.ascontiguousarray(mask.reshape(size, size)[::-1] > 0)
 
     def release(self) -> None:
-        for thing in (self.draw_fbo, self.resolve_fbo, self.samples, self.depth, self.image,
-                      self.covered):
+        for thing in (
+            self.draw_fbo,
+            self.resolve_fbo,
+            self.samples,
+            self.depth,
+            self.image,
+            self.covered,
+        ):
             thing.release()
 
 

@@ -99,7 +99,9 @@ class Training:
     def __init__(self, mesh: TexturedMesh, settings: TrainingSettings):
         self.mesh = mesh
         self.settings = settings
-        self.options = check_options(settings.method, "cpu", 0, settings.steps, settings.time_budget)
+        self.options = check_options(
+            settings.method, "cpu", 0, settings.steps, settings.time_budget
+        )
         if settings.optimize:
             self.options.extra["optimize"] = dict(settings.optimize)
         self.controller = Controller()
@@ -138,8 +140,14 @@ class Training:
         """A shallow copy of the state, consistent at one instant (lists are copied)."""
         with self.lock:
             state = TrainingState(**self.state.__dict__)
-            for name in ("steps", "times", "losses", "validation_steps", "validation_times",
-                         "validation_psnr"):
+            for name in (
+                "steps",
+                "times",
+                "losses",
+                "validation_steps",
+                "validation_times",
+                "validation_psnr",
+            ):
                 setattr(state, name, list(getattr(state, name)))
             return state
 
@@ -159,8 +167,10 @@ class Training:
             bicubic = run_method("bicubic", self.mesh, settings.scale)
             bicubic_psnr = float(q.score(bicubic.textures)["psnr_fg"].mean())
             learned = is_learned(settings.method)
-            self._set(bicubic_psnr=bicubic_psnr,
-                      phase="caching training views" if learned else "running " + settings.method)
+            self._set(
+                bicubic_psnr=bicubic_psnr,
+                phase="caching training views" if learned else "running " + settings.method,
+            )
             self.options.on_event = self._on_event
             done = downsample(
                 self.mesh,
@@ -173,9 +183,13 @@ class Training:
             )
             rows = {row["method"]: row for row in done.rows}
             best = rows[settings.method]["psnr_fg"]
-            self._set(result=done, best_psnr=best, phase="done",
-                      textures=[None if t is None else t[..., :3] for t in done.result.textures],
-                      texture_version=self.state.texture_version + 1)
+            self._set(
+                result=done,
+                best_psnr=best,
+                phase="done",
+                textures=[None if t is None else t[..., :3] for t in done.result.textures],
+                texture_version=self.state.texture_version + 1,
+            )
         except Exception as error:  # shown in the UI; the app keeps running
             self._set(phase="failed", error=f"{type(error).__name__}: {error}")
 

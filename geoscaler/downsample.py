@@ -420,7 +420,8 @@ def downsample(
     start = time.perf_counter()
     cameras = protocol_cameras(VALIDATION_DISTANCE, views)
     if q is None:
-        q = ViewSet(RENDERER(mesh, options.device), cameras, progress.caching_q if progress else None)
+        report = progress.caching_q if progress else None
+        q = ViewSet(RENDERER(mesh, options.device), cameras, report)
     renderer = q.renderer
     q_seconds = time.perf_counter() - start
 

@@ -46,8 +46,12 @@ def both_renders(ctx, mesh, camera: Camera, textures=None, uvs=None):
     gbuffer = renderer.rasterize(camera)
     torch_uvs = None if uvs is None else torch.from_numpy(uvs)
     reference = renderer.render(gbuffer, mips, torch_uvs)
-    return torch.from_numpy(image).float() / 255, torch.from_numpy(foreground), reference, \
-        renderer.foreground(gbuffer)
+    return (
+        torch.from_numpy(image).float() / 255,
+        torch.from_numpy(foreground),
+        reference,
+        renderer.foreground(gbuffer),
+    )
 
 
 def agreement(ctx, mesh, camera, textures=None, uvs=None) -> float:
