@@ -31,13 +31,15 @@ from .views import ViewsPanel
 
 WINDOW_SIZE = (1440, 900)
 LAYOUT = {  # window -> (x, y, width, height) at first use, for a 1440 x 900 window
-    "Views": (0, 20, 900, 560),
-    "Optimise": (900, 20, 540, 300),
-    "Plots": (900, 320, 540, 300),
-    "UV inspector": (0, 580, 900, 320),
-    "Bookmarks": (900, 620, 540, 150),
-    "Export": (900, 770, 540, 130),
+    "Views": (0, 20, 860, 540),
+    "Optimise": (860, 20, 580, 300),
+    "Plots": (860, 320, 580, 290),
+    "UV inspector": (0, 560, 860, 340),
+    "Bookmarks": (860, 610, 580, 160),
+    "Export": (860, 770, 580, 130),
 }
+MAX_FPS = 60.0
+"""Frames a second at most: the rest of the time (and the GIL) goes to the optimiser."""
 
 
 class App:
@@ -72,6 +74,7 @@ class App:
         self.overwrite = False
         self.open_path = ""
         self.frames = 0
+        self.last_frame = 0.0
         self.loader = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="geoscaler-load")
         self.loading: tuple[Path | None, concurrent.futures.Future] | None = None
         self.dialog = None
@@ -261,6 +264,7 @@ class App:
     # ----------------------------------------------------------------- the frame
 
     def gui(self) -> None:
+        self._pace()
         self.frames += 1
         self._collect_load()
         self._collect_dialog()
@@ -286,6 +290,14 @@ class App:
                 self.views.draw(self.session)
             else:
                 panel.draw(self)
+
+    def _pace(self) -> None:
+        """Sleep out the rest of a 1 / MAX_FPS frame."""
+        now = time.perf_counter()
+        wait = self.last_frame + 1.0 / MAX_FPS - now
+        if wait > 0:
+            time.sleep(wait)
+        self.last_frame = time.perf_counter()
 
     def _menu(self) -> None:
         if not imgui.begin_main_menu_bar():

@@ -91,14 +91,15 @@ class OptimisePanel:
         done, total = state.caching
         if total and state.step == 0 and state.phase.startswith("caching"):
             imgui.progress_bar(done / total, ImVec2(-1, 0), f"views {done}/{total}")
-        imgui.text(f"step {state.step}" + (f" / {state.total_steps}" if state.total_steps else ""))
-        if state.losses:
-            imgui.text(f"loss {state.losses[-1]:.4g}")
-        if math.isfinite(state.best_psnr):
-            imgui.text(f"best validation PSNR-fg {state.best_psnr:.2f} dB")
-        if math.isfinite(state.bicubic_psnr):
-            imgui.text(f"bicubic PSNR-fg {state.bicubic_psnr:.2f} dB")
-        if math.isfinite(state.gain):
+        steps = f"step {state.step}" + (f" / {state.total_steps}" if state.total_steps else "")
+        loss = f"   loss {state.losses[-1]:.4g}" if state.losses else ""
+        imgui.text(steps + loss)
+        if math.isfinite(state.best_psnr) and math.isfinite(state.bicubic_psnr):
+            imgui.text(
+                f"validation PSNR-fg: best {state.best_psnr:.2f} dB, "
+                f"bicubic {state.bicubic_psnr:.2f} dB,"
+            )
+            imgui.same_line()
             imgui.text_colored(GREEN if state.gain > 0 else RED, f"gain {state.gain:+.2f} dB")
         if state.result is not None:
             for row in state.result.rows:
@@ -138,8 +139,7 @@ class PlotsPanel:
                 xs = np.asarray(xs, float)
                 implot.plot_line("method", xs, np.asarray(state.validation_psnr, float))
                 if math.isfinite(state.bicubic_psnr):
-                    ys = np.full(len(xs), state.bicubic_psnr)
-                    implot.plot_line("bicubic", xs, ys)
+                    implot.plot_line("bicubic", xs, np.full(len(xs), float(state.bicubic_psnr)))
             implot.end_plot()
         imgui.end()
 
@@ -155,6 +155,7 @@ class UVPanel:
         self.drawn_for: tuple | None = None
         self.outlines: np.ndarray | None = None
         self.warp_max_texels = 0.0
+        self.size = 256  # texels per side of the pictures: the size they are shown at
 
     def reset(self) -> None:
         self.drawn_for = None
@@ -167,8 +168,10 @@ class UVPanel:
         if key == self.drawn_for:
             return
         ctx = session.renderer.ctx
-        if self.pictures is None:
-            self.pictures = (UVPicture(ctx), UVPicture(ctx))
+        if self.pictures is None or self.pictures[0].size != self.size:
+            for picture in self.pictures or ():
+                picture.release()
+            self.pictures = (UVPicture(ctx, self.size), UVPicture(ctx, self.size))
         if self.outlines is None:
             self.outlines = chart_outlines(session.mesh, self.material)
         m = self.material
@@ -199,12 +202,14 @@ class UVPanel:
             changed, self.material = imgui.combo("material", self.material, materials)
             if changed:
                 self.outlines = None
-        self._update(app)
-        assert self.pictures is not None
-        count = 3 if self.warp_texture is not None else 2
+        count = 3 if app.session.candidate_uvs is not None else 2
         width = imgui.get_content_region_avail().x
         height = imgui.get_content_region_avail().y - imgui.get_text_line_height_with_spacing()
         side = max(min((width - 8 * count) / count, height), 32)
+        if abs(side - self.size) > 16:  # lines stay one texel wide on screen
+            self.size, self.drawn_for = int(side), None
+        self._update(app)
+        assert self.pictures is not None
         imgui.text(f"original, {len(self.outlines)} chart boundary edges")
         imgui.same_line(side + 16)
         imgui.text(f"new: {session.candidate_label}")

@@ -116,6 +116,7 @@ class UVPicture:
 
     def __init__(self, ctx: moderngl.Context, size: int = 512):
         self.ctx = ctx
+        self.size = size
         self.image = ctx.texture((size, size), 4)
         self.fbo = ctx.framebuffer([self.image])
         self.image_program = program(ctx, "fullscreen.vert", "uv_image.frag")
@@ -146,5 +147,5 @@ class UVPicture:
             buffer.release()
 
     def release(self) -> None:
-        for thing in (self.fbo, self.image, self.empty):
+        for thing in (self.fbo, self.image, self.empty, self.image_program, self.line_program):
             thing.release()

@@ -72,6 +72,7 @@ class ViewsPanel:
         self.dirty = True
         self.composer: Composer | None = None
         self.renders = 0
+        self.rects: dict[str, tuple[float, float, float, float]] = {}  # screen rect per view
 
     def jump(self, orbit: Orbit) -> None:
         self.orbit = Orbit(*orbit.to_tuple())
@@ -102,6 +103,7 @@ class ViewsPanel:
         width = imgui.get_content_region_avail().x
         height = imgui.get_content_region_avail().y - imgui.get_text_line_height_with_spacing()
         original, candidate = session.targets
+        self.rects.clear()
         if self.mode == SIDE_BY_SIDE:
             side = max(min((width - 8) / 2, height), 64)
             imgui.text(f"original ({session.display_path})")
@@ -156,6 +158,7 @@ class ViewsPanel:
         )
         imgui.invisible_button(name, ImVec2(side, side), flags)
         lo, hi = imgui.get_item_rect_min(), imgui.get_item_rect_max()
+        self.rects[name] = (lo.x, lo.y, hi.x, hi.y)
         imgui.get_window_draw_list().add_image(texture_ref(texture), lo, hi, *FLIP_V)
         self._interact(side)
 
