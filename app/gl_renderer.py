@@ -24,7 +24,7 @@ from geoscaler.baselines import reference_texture
 from geoscaler.cameras import Camera
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import TexturedMesh
-from geoscaler.texture import build_mip_chain, linear_to_srgb, mip_sizes, texture_to_linear
+from geoscaler.texture import build_mip_chain, linear_to_srgb, texture_to_linear
 
 GL_SRGB8_ALPHA8 = 0x8C43
 SHADER_DIR = Path(__file__).resolve().parent.parent / "shaders"
@@ -89,14 +89,16 @@ def srgb_mip_chain(texture: np.ndarray) -> list[np.ndarray]:
     return chain
 
 
-def upload_texture(ctx: moderngl.Context, texture: np.ndarray) -> moderngl.Texture:
-    """A ``GL_SRGB8_ALPHA8`` texture with the protocol's mip chain, repeat addressing, trilinear.
+def upload_texture(ctx: moderngl.Context, chain: list[np.ndarray]) -> moderngl.Texture:
+    """A ``GL_SRGB8_ALPHA8`` texture with a mip chain, repeat addressing, trilinear filtering.
+
+    Args:
+        chain: the levels from :func:`srgb_mip_chain` (built on any thread; uploading is quick).
 
     Image rows are flipped on upload so that GL's ``t`` equals the mesh's ``v`` (row 0 of the
     image is ``v = 1``); each level is flipped after it is built, so odd-size levels drop the
     same row as the torch chain does.
     """
-    chain = srgb_mip_chain(texture)
     height, width = chain[0].shape[:2]
     gl_texture = ctx.texture((width, height), 4, internal_format=GL_SRGB8_ALPHA8)
     gl_texture.build_mipmaps(0, len(chain) - 1)  # allocates every level
@@ -160,6 +162,7 @@ class Surface:
     Args:
         textures: per material ``(H, W, C)`` uint8 sRGB texture, or None (untextured).
         uvs: ``(V, 2)`` UVs for these textures, or None for the mesh's own.
+        chains: the textures' :func:`srgb_mip_chain`, when already built (e.g. by a worker).
     """
 
     def __init__(
@@ -167,14 +170,17 @@ class Surface:
         renderer: GLRenderer,
         textures: Sequence[np.ndarray | None],
         uvs: np.ndarray | None = None,
+        chains: Sequence[list[np.ndarray] | None] | None = None,
     ):
         ctx = renderer.ctx
         if len(textures) != len(renderer.mesh.materials):
             raise GeoscalerError(
                 f"{len(textures)} textures for {len(renderer.mesh.materials)} materials"
             )
-        self.textures = [None if t is None else upload_texture(ctx, t) for t in textures]
-        self.levels = [0 if t is None else len(mip_sizes(*t.shape[:2])) for t in textures]
+        if chains is None:
+            chains = [None if t is None else srgb_mip_chain(t) for t in textures]
+        self.textures = [None if c is None else upload_texture(ctx, c) for c in chains]
+        self.levels = [0 if c is None else len(c) for c in chains]
         uvs = renderer.mesh.uvs if uvs is None else uvs
         self.uv_buffer = ctx.buffer(np.ascontiguousarray(uvs, dtype=np.float32).tobytes())
         self.vao = ctx.vertex_array(
@@ -236,8 +242,12 @@ class GLRenderer:
         )
 
     def target(self) -> Target:
-        """A new render target of this renderer's size."""
+        """A new render target of this renderer's size and supersampling."""
         return Target(self.ctx, self.image_size, self.supersample)
+
+    def preview_target(self) -> Target:
+        """A target 8 times cheaper to fill: half the image size, no supersampling."""
+        return Target(self.ctx, self.image_size // 2, 1)
 
     def render(
         self,
@@ -275,7 +285,7 @@ class GLRenderer:
         target.resolve_fbo.use()
         target.samples.use(0)
         self.resolve_program["samples"] = 0
-        self.resolve_program["factor"] = self.supersample
+        self.resolve_program["factor"] = target.supersample
         self.empty_vao.render(moderngl.TRIANGLES, vertices=3)
         return target
 

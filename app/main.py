@@ -29,14 +29,14 @@ from .session import DEMO_NAME, Session
 from .training import Training, TrainingSettings, TrainingState
 from .views import ViewsPanel
 
-WINDOW_SIZE = (1440, 900)
-LAYOUT = {  # window -> (x, y, width, height) at first use, for a 1440 x 900 window
-    "Views": (0, 20, 860, 540),
-    "Optimise": (860, 20, 580, 300),
-    "Plots": (860, 320, 580, 290),
-    "UV inspector": (0, 560, 860, 340),
-    "Bookmarks": (860, 610, 580, 160),
-    "Export": (860, 770, 580, 130),
+WINDOW_SIZE = (1280, 800)
+LAYOUT = {  # window -> (x, y, width, height) at first use, for a 1280 x 800 window
+    "Views": (0, 20, 760, 470),
+    "Optimise": (760, 20, 520, 250),
+    "Plots": (760, 270, 520, 260),
+    "UV inspector": (0, 490, 760, 310),
+    "Bookmarks": (760, 530, 520, 150),
+    "Export": (760, 680, 520, 120),
 }
 MAX_FPS = 60.0
 """Frames a second at most: the rest of the time (and the GIL) goes to the optimiser."""
@@ -206,7 +206,7 @@ class App:
         if state.result is not None:
             label = f"{settings.method} x{settings.scale} (best, as exported)"
             uvs = state.result.result.uvs
-        self.session.set_candidate(state.textures, uvs, label)
+        self.session.set_candidate(state.textures, uvs, label, state.chains)
         self.shown_version = state.texture_version
         self.views.dirty = True
 
@@ -326,9 +326,12 @@ class App:
         imgui.end_main_menu_bar()
 
     def shutdown(self) -> None:
+        """Stop the optimiser and wait for it: a phase that cannot be cut short (view caching,
+        the final scoring) ends first, so that no worker outlives the interpreter."""
         if self.training is not None:
             self.training.stop()
-        self.loader.shutdown(wait=False, cancel_futures=True)
+            self.training.wait()
+        self.loader.shutdown(wait=True, cancel_futures=True)
 
     # ----------------------------------------------------------------- running
 

@@ -53,6 +53,8 @@ class Session:
         self.candidate: Surface | None = None
         self.candidate_label = ""
         self.targets: tuple[Target, Target] = (self.renderer.target(), self.renderer.target())
+        previews = (self.renderer.preview_target(), self.renderer.preview_target())
+        self.previews: tuple[Target, Target] = previews
         self.bookmarks = Bookmarks(out_dir / f"{self.name}.bookmarks.json", self.name)
         self.set_bicubic(scale)
 
@@ -66,16 +68,21 @@ class Session:
         self.set_candidate(textures, None, f"bicubic x{scale}")
 
     def set_candidate(
-        self, textures: list[np.ndarray | None], uvs: np.ndarray | None, label: str
+        self,
+        textures: list[np.ndarray | None],
+        uvs: np.ndarray | None,
+        label: str,
+        chains: list[list[np.ndarray] | None] | None = None,
     ) -> None:
-        """Show ``textures`` (8-bit sRGB, one per material) with ``uvs`` as the candidate."""
-        surface = Surface(self.renderer, textures, uvs)
+        """Show ``textures`` (8-bit sRGB, one per material) with ``uvs`` as the candidate
+        (``chains``: their mip chains, if already built)."""
+        surface = Surface(self.renderer, textures, uvs, chains)
         if self.candidate is not None:
             self.candidate.release()
         self.candidate, self.candidate_textures = surface, textures
         self.candidate_uvs, self.candidate_label = uvs, label
 
     def release(self) -> None:
-        for thing in (self.original, self.candidate, *self.targets):
+        for thing in (self.original, self.candidate, *self.targets, *self.previews):
             if thing is not None:
                 thing.release()

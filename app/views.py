@@ -1,8 +1,10 @@
 """The two synchronised views: original and downsampled, side by side, wiped, differenced or
 toggled A/B, with one orbit camera for both.
 
-Views are re-rendered only when something they show changed (camera, texture, mode, size), so
-an idle window costs almost nothing and the optimiser keeps the CPU.
+Views are re-rendered only when something they show changed (camera, texture, mode), so an
+idle window costs almost nothing and the optimiser keeps the CPU. While the camera moves, views
+are previews at half the size without supersampling (16 times fewer fragments); the frame after
+it stops, they are rendered again in full, at the protocol's 2 x 2 supersampling.
 """
 
 from __future__ import annotations
@@ -70,6 +72,9 @@ class ViewsPanel:
         self.gain = 8.0
         self.show_candidate = True  # the A/B toggle: B is the downsampled view
         self.dirty = True
+        self.moving = False  # the camera moved this frame: render previews
+        self.previewing = False  # the views on screen are previews
+        self.original_drawn: tuple | None = None  # what the original view shows
         self.composer: Composer | None = None
         self.renders = 0
         self.rects: dict[str, tuple[float, float, float, float]] = {}  # screen rect per view
@@ -78,14 +83,29 @@ class ViewsPanel:
         self.orbit = Orbit(*orbit.to_tuple())
         self.dirty = True
 
+    def moved(self) -> None:
+        """The camera was changed by a drag or the wheel: preview until it rests."""
+        self.dirty = self.moving = True
+
+    def shown(self, session: Session):
+        """The ``(original, downsampled)`` targets on screen."""
+        return session.previews if self.previewing else session.targets
+
     def render(self, session: Session) -> None:
-        """Draw both views (and the composed picture) if anything changed."""
-        if not self.dirty or session.candidate is None:
+        """Draw both views (and the composed picture) if anything changed, as previews while
+        the camera moves, in full once it rests."""
+        refine = self.previewing and not self.moving
+        if not (self.dirty or refine) or session.candidate is None:
+            self.moving = False
             return
+        self.previewing, self.moving = self.moving, False
         renderer = session.renderer
         camera, pan = self.orbit.camera(), self.orbit.pan
-        original, candidate = session.targets
-        renderer.render(camera, session.original, original, pan)
+        original, candidate = self.shown(session)
+        key = (id(session), self.orbit.to_tuple(), self.previewing)
+        if key != self.original_drawn:  # a new texture alone leaves the original as it is
+            renderer.render(camera, session.original, original, pan)
+            self.original_drawn = key
         renderer.render(camera, session.candidate, candidate, pan)
         if self.mode in (WIPE, DIFFERENCE):
             if self.composer is None:
@@ -93,6 +113,9 @@ class ViewsPanel:
             mode = 0 if self.mode == WIPE else 1
             self.composer.compose(original.image, candidate.image, mode, self.split, self.gain)
         renderer.ctx.screen.use()
+        # Finishing here, before imgui samples the views, measured 2x more frames a second on
+        # Mesa llvmpipe than letting the driver interleave the work (16 vs 7.7 fps orbiting).
+        renderer.ctx.finish()
         self.dirty = False
         self.renders += 1
 
@@ -102,7 +125,7 @@ class ViewsPanel:
         self.render(session)
         width = imgui.get_content_region_avail().x
         height = imgui.get_content_region_avail().y - imgui.get_text_line_height_with_spacing()
-        original, candidate = session.targets
+        original, candidate = self.shown(session)
         self.rects.clear()
         if self.mode == SIDE_BY_SIDE:
             side = max(min((width - 8) / 2, height), 64)
@@ -171,11 +194,11 @@ class ViewsPanel:
                     self.orbit.rotate(dx, dy)
                 else:
                     self.orbit.shift(dx, dy, side)
-                self.dirty = True
+                self.moved()
         if imgui.is_item_hovered():
             if io.mouse_wheel:
                 self.orbit.zoom(io.mouse_wheel)
-                self.dirty = True
+                self.moved()
             if imgui.is_mouse_double_clicked(imgui.MouseButton_.left):
                 self.orbit.reset()
                 self.dirty = True
