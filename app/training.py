@@ -23,7 +23,15 @@ import torch
 
 from geoscaler.cameras import VALIDATION_DISTANCE, VALIDATION_VIEWS
 from geoscaler.compare import protocol_cameras
-from geoscaler.downsample import Downsampled, check_options, downsample, is_learned
+from geoscaler.downsample import (
+    Downsampled,
+    check_method,
+    check_options,
+    check_scale,
+    check_scale_fits,
+    downsample,
+    is_learned,
+)
 from geoscaler.evaluate import ViewSet
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods import run_method
@@ -98,9 +106,14 @@ class Training:
     Args:
         mesh: the mesh (read only).
         settings: what to run.
+
+    Raises:
+        GeoscalerError: an unknown method, a bad scale, steps or time budget.
     """
 
     def __init__(self, mesh: TexturedMesh, settings: TrainingSettings):
+        check_method(settings.method)
+        check_scale_fits(mesh, check_scale(settings.scale))
         self.mesh = mesh
         self.settings = settings
         self.options = check_options(
