@@ -35,10 +35,10 @@ def main() -> None:
     parser.add_argument("--views", type=int, default=8, help="validation views (default 8)")
     args = parser.parse_args()
 
-    from geoscaler.app.main import App, add_ons
-    from geoscaler.app.training import TrainingSettings
     from imgui_bundle import hello_imgui
 
+    from geoscaler.app.main import App, add_ons
+    from geoscaler.app.training import TrainingSettings
     from geoscaler.procedural import demo_mesh
 
     path = Path(args.mesh) if args.mesh else (DEFAULT_MESH if DEFAULT_MESH.is_file() else None)
