@@ -44,6 +44,12 @@ def program(ctx: moderngl.Context, vertex: str, fragment: str) -> moderngl.Progr
     return ctx.program(vertex_shader=shader_source(vertex), fragment_shader=shader_source(fragment))
 
 
+def use_screen(ctx: moderngl.Context) -> None:
+    """Bind the window's framebuffer again (a headless context has none)."""
+    if ctx.screen is not None:
+        ctx.screen.use()
+
+
 def headless_context() -> moderngl.Context:
     """An offscreen OpenGL 4.5 context through EGL (Mesa llvmpipe on machines without a GPU).
 

@@ -32,8 +32,8 @@ from .views import ViewsPanel
 WINDOW_SIZE = (1280, 800)
 LAYOUT = {  # window -> (x, y, width, height) at first use, for a 1280 x 800 window
     "Views": (0, 20, 760, 470),
-    "Optimise": (760, 20, 520, 250),
-    "Plots": (760, 270, 520, 260),
+    "Optimise": (760, 20, 520, 290),
+    "Plots": (760, 310, 520, 220),
     "UV inspector": (0, 490, 760, 310),
     "Bookmarks": (760, 530, 520, 150),
     "Export": (760, 680, 520, 120),

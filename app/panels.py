@@ -16,6 +16,7 @@ from geoscaler.downsample import is_learned
 from geoscaler.methods import METHODS
 from geoscaler.metrics import psnr_fg, ssim_fg
 
+from .gl_renderer import use_screen
 from .uv_inspect import (
     GRID_COLOUR,
     OUTLINE_COLOUR,
@@ -123,16 +124,17 @@ class PlotsPanel:
         if imgui.radio_button("against time (s)", self.against_time):
             self.against_time = True
         state = app.state
-        height = (imgui.get_content_region_avail().y - 8) / 2
+        size = ImVec2((imgui.get_content_region_avail().x - 8) / 2, -1)
         x_label = "seconds" if self.against_time else "step"
         fit = implot.AxisFlags_.auto_fit
-        if implot.begin_plot("loss", ImVec2(-1, height)):
+        if implot.begin_plot("loss", size):
             implot.setup_axes(x_label, "training loss", fit, fit)
             if state is not None and state.losses:
                 xs = state.times if self.against_time else state.steps
                 implot.plot_line("loss", np.asarray(xs, float), np.asarray(state.losses, float))
             implot.end_plot()
-        if implot.begin_plot("validation PSNR-fg (dB)", ImVec2(-1, height)):
+        imgui.same_line()
+        if implot.begin_plot("validation PSNR-fg (dB)", size):
             implot.setup_axes(x_label, "dB", fit, fit)
             if state is not None and state.validation_psnr:
                 xs = state.validation_times if self.against_time else state.validation_steps
@@ -191,7 +193,7 @@ class UVPanel:
             picture = heatmap(magnitude, covered)
             self.warp_texture = ctx.texture(picture.shape[1::-1], 4, picture.tobytes())
         self.pictures[1].draw(session.candidate.textures[m], layers)
-        ctx.screen.use()
+        use_screen(ctx)
         self.drawn_for = key
 
     def draw(self, app: App) -> None:

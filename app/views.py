@@ -12,7 +12,7 @@ from __future__ import annotations
 import moderngl
 from imgui_bundle import ImVec2, imgui
 
-from .gl_renderer import program
+from .gl_renderer import program, use_screen
 from .orbit import Orbit
 from .session import Session
 
@@ -69,7 +69,7 @@ class ViewsPanel:
         self.orbit = Orbit()
         self.mode = SIDE_BY_SIDE
         self.split = 0.5
-        self.gain = 8.0
+        self.gain = 4.0
         self.show_candidate = True  # the A/B toggle: B is the downsampled view
         self.dirty = True
         self.moving = False  # the camera moved this frame: render previews
@@ -112,7 +112,7 @@ class ViewsPanel:
                 self.composer = Composer(renderer.ctx, renderer.image_size)
             mode = 0 if self.mode == WIPE else 1
             self.composer.compose(original.image, candidate.image, mode, self.split, self.gain)
-        renderer.ctx.screen.use()
+        use_screen(renderer.ctx)
         # Finishing here, before imgui samples the views, measured 2x more frames a second on
         # Mesa llvmpipe than letting the driver interleave the work (16 vs 7.7 fps orbiting).
         renderer.ctx.finish()

@@ -72,8 +72,9 @@ def test_a_session_in_the_app(gui_runner, tmp_path):
         image_size=128,
         optimize={"pool_views": 4, "validate_every": 5},
     )
-    app = main.App(None, tmp_path / "out", settings, demo=lambda: demo_mesh(8, 256))
-    shots = {name: tmp_path / f"{name}.png" for name in ("start", "training", "done")}
+    app = main.App(None, tmp_path / "out", settings, demo=lambda: demo_mesh(16, 512))
+    names = ("start", "training", "difference", "wipe", "done")
+    shots = {name: tmp_path / f"{name}.png" for name in names}
     seen: dict = {}
 
     def session(ctx) -> None:
@@ -83,9 +84,9 @@ def test_a_session_in_the_app(gui_runner, tmp_path):
         seen["first label"] = app.session.candidate_label
 
         ctx.item_click("//Optimise/Start")
-        assert wait_until(ctx, lambda: app.state is not None and app.state.step >= 12, 90)
+        assert wait_until(ctx, lambda: app.state is not None and app.state.step >= 6, 90)
         seen["steps"] = [app.state.step]
-        wait_until(ctx, lambda: app.state.step >= seen["steps"][0] + 3, 30)
+        wait_until(ctx, lambda: app.state.step >= seen["steps"][0] + 2, 30)
         seen["steps"].append(app.state.step)
         ctx.yield_(2)
         testing.capture(ctx, str(shots["training"]))
@@ -98,6 +99,11 @@ def test_a_session_in_the_app(gui_runner, tmp_path):
         ctx.item_click("//Bookmarks/view 1##0")
         ctx.item_click("//Bookmarks/A\\/B here")
         seen["metrics"] = app.bookmarks.metrics
+        for mode in ("difference", "wipe"):
+            ctx.item_click(f"//Views/{mode}")
+            ctx.yield_(2)
+            testing.capture(ctx, str(shots[mode]))
+            seen[mode] = app.views.rects["##composed"]
         ctx.item_click("//Views/side by side")
         ctx.item_click("//Export/Export mesh + report")
         ctx.item_click("//Export/Save screenshot")
@@ -124,7 +130,7 @@ def test_a_session_in_the_app(gui_runner, tmp_path):
     assert seen["first label"] == "bicubic x4"
 
     # Training: the step counter advances and the downsampled view changes live.
-    assert seen["steps"][1] > seen["steps"][0] >= 12
+    assert seen["steps"][1] > seen["steps"][0] >= 6
     assert seen["training label"].startswith("direct x4, step")
     live = crop(shots["training"], seen["rects"]["##downsampled"])
     assert is_picture(live)
@@ -137,10 +143,16 @@ def test_a_session_in_the_app(gui_runner, tmp_path):
     assert 15.0 < seen["metrics"]["psnr_fg"] < 60.0
     assert 0.0 < seen["metrics"]["ssim_fg"] <= 1.0
 
+    # Difference heatmap: black background, bright where the views differ; wipe: a picture.
+    difference = crop(shots["difference"], seen["difference"])
+    assert (difference.max(axis=2) < 5).mean() > 0.1 and difference.max() > 100
+    wipe = crop(shots["wipe"], seen["wipe"])
+    assert is_picture(wipe) and np.abs(difference - wipe).mean() > 10
+
     # Export: the mesh loads back with the 4x smaller texture, the report names the method.
     exported = load_mesh(tmp_path / "out" / "geoscaler_demo_x4.glb")
-    assert exported.materials[0].base_color_texture.shape[:2] == (64, 64)
-    assert len(exported.faces) == len(demo_mesh(8, 256).faces)
+    assert exported.materials[0].base_color_texture.shape[:2] == (128, 128)
+    assert len(exported.faces) == len(demo_mesh(16, 512).faces)
     report = json.loads((tmp_path / "out" / "geoscaler_demo_x4.json").read_text())
     assert report["method"] == "direct" and report["results"][0]["method"] == "direct"
     assert (tmp_path / "out" / "geoscaler_demo_view_1.png").is_file()

@@ -192,3 +192,28 @@ def test_a_failing_method_reports_its_error(small_demo, monkeypatch):
     assert run.wait(timeout=60)
     assert run.read().phase == "failed"
     assert run.read().error == "RuntimeError: out of texels"
+
+
+def test_the_uv_inspector_shows_the_warp_of_new_uvs(small_demo, tmp_path):
+    """A method that returns new UVs (here a synthetic shift of 2 texels of the 32-texel result):
+    the inspector adds the deformed grid and a warp heatmap that reads 2 texels."""
+    ctx = gl_context()
+    session_module = import_app_module("session")
+    panels = import_app_module("panels")
+    session = session_module.Session(ctx, small_demo, None, tmp_path, scale=4, image_size=64)
+
+    class App:  # what UVPanel reads of the app
+        pass
+
+    app = App()
+    app.session = session
+    panel = panels.UVPanel()
+    panel._update(app)
+    assert panel.warp_texture is None  # bicubic keeps the mesh's UVs
+    texture = session.candidate_textures[0]
+    warped = (small_demo.uvs + np.float32(2.0 / 32)).astype(np.float32)
+    session.set_candidate([texture], warped, "warped")
+    panel._update(app)
+    assert panel.warp_texture is not None
+    assert panel.warp_max_texels == pytest.approx(2.0 * math.sqrt(2.0), rel=1e-3)
+    session.release()
