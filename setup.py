@@ -10,5 +10,5 @@ from setuptools import find_packages, setup
 setup(
     packages=[*find_packages(include=["geoscaler*"]), "geoscaler.app", "geoscaler.shaders"],
     package_dir={"geoscaler.app": "app", "geoscaler.shaders": "shaders"},
-    package_data={"geoscaler.shaders": ["*.glsl"]},
+    package_data={"geoscaler.shaders": ["*.vert", "*.frag"]},
 )

@@ -217,3 +217,10 @@ def test_the_uv_inspector_shows_the_warp_of_new_uvs(small_demo, tmp_path):
     assert panel.warp_texture is not None
     assert panel.warp_max_texels == pytest.approx(2.0 * math.sqrt(2.0), rel=1e-3)
     session.release()
+
+
+def test_every_shader_is_shipped_with_the_package():
+    """setup.py installs shaders/*.vert and *.frag as geoscaler/shaders: nothing else is there."""
+    gl_renderer = import_app_module("gl_renderer")
+    names = sorted(p.name for p in gl_renderer.SHADER_DIR.iterdir())
+    assert names and all(name.endswith((".vert", ".frag")) for name in names), names
