@@ -30,7 +30,8 @@ from .training import Training, TrainingSettings, TrainingState
 from .views import ViewsPanel
 
 WINDOW_SIZE = (1280, 800)
-LAYOUT = {  # window -> (x, y, width, height) at first use, for a 1280 x 800 window
+LAYOUT = {  # window -> (x, y, width, height) at first use, for a 1280 x 800 window; the
+    # order is the order of the panels in App.gui
     "Views": (0, 20, 760, 470),
     "Optimise": (760, 20, 520, 290),
     "Plots": (760, 310, 520, 220),
@@ -275,21 +276,11 @@ class App:
         if self.session is None:
             imgui.text("loading..." if self.loading else (self.error or "no mesh open"))
             return
-        for name, (x, y, w, h) in LAYOUT.items():
+        panels = (self.views, self.optimise, self.plots, self.uv, self.bookmarks, self.exporter)
+        for panel, (x, y, w, h) in zip(panels, LAYOUT.values(), strict=True):
             imgui.set_next_window_pos(ImVec2(x, y), imgui.Cond_.first_use_ever)
             imgui.set_next_window_size(ImVec2(w, h), imgui.Cond_.first_use_ever)
-            panel = {
-                "Views": self.views,
-                "Optimise": self.optimise,
-                "Plots": self.plots,
-                "UV inspector": self.uv,
-                "Bookmarks": self.bookmarks,
-                "Export": self.exporter,
-            }[name]
-            if panel is self.views:
-                self.views.draw(self.session)
-            else:
-                panel.draw(self)
+            panel.draw(self)
 
     def _pace(self) -> None:
         """Sleep out the rest of a 1 / MAX_FPS frame."""

@@ -9,12 +9,17 @@ it stops, they are rendered again in full, at the protocol's 2 x 2 supersampling
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import moderngl
 from imgui_bundle import ImVec2, imgui
 
 from .gl_renderer import program, use_screen
 from .orbit import Orbit
 from .session import Session
+
+if TYPE_CHECKING:
+    from .main import App
 
 MODES = ("side by side", "wipe", "difference", "A/B")
 SIDE_BY_SIDE, WIPE, DIFFERENCE, AB = range(len(MODES))
@@ -119,7 +124,8 @@ class ViewsPanel:
         self.dirty = False
         self.renders += 1
 
-    def draw(self, session: Session) -> None:
+    def draw(self, app: App) -> None:
+        session = app.session
         imgui.begin("Views")
         self._toolbar(session)
         self.render(session)
