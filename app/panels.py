@@ -17,6 +17,7 @@ from geoscaler.methods import METHODS
 from geoscaler.metrics import psnr_fg, ssim_fg
 
 from .gl_renderer import use_screen
+from .training import SSIM_VIEWS
 from .uv_inspect import (
     GRID_COLOUR,
     OUTLINE_COLOUR,
@@ -95,6 +96,8 @@ class OptimisePanel:
         steps = f"step {state.step}" + (f" / {state.total_steps}" if state.total_steps else "")
         loss = f"   loss {state.losses[-1]:.4g}" if state.losses else ""
         imgui.text(steps + loss)
+        if state.validation_ssim:
+            imgui.text(f"SSIM-fg on {SSIM_VIEWS} validation views: {state.validation_ssim[-1]:.4f}")
         if math.isfinite(state.best_psnr) and math.isfinite(state.bicubic_psnr):
             imgui.text(
                 f"validation PSNR-fg: best {state.best_psnr:.2f} dB, "
@@ -134,14 +137,20 @@ class PlotsPanel:
                 implot.plot_line("loss", np.asarray(xs, float), np.asarray(state.losses, float))
             implot.end_plot()
         imgui.same_line()
-        if implot.begin_plot("validation PSNR-fg (dB)", size):
-            implot.setup_axes(x_label, "dB", fit, fit)
+        if implot.begin_plot("validation", size):
+            implot.setup_axes(x_label, "PSNR-fg (dB)", fit, fit)
+            implot.setup_axis(implot.ImAxis_.y2, "SSIM-fg", fit | implot.AxisFlags_.opposite)
             if state is not None and state.validation_psnr:
                 xs = state.validation_times if self.against_time else state.validation_steps
                 xs = np.asarray(xs, float)
-                implot.plot_line("method", xs, np.asarray(state.validation_psnr, float))
+                implot.plot_line("PSNR-fg", xs, np.asarray(state.validation_psnr, float))
                 if math.isfinite(state.bicubic_psnr):
-                    implot.plot_line("bicubic", xs, np.full(len(xs), float(state.bicubic_psnr)))
+                    ys = np.full(len(xs), float(state.bicubic_psnr))
+                    implot.plot_line("bicubic PSNR-fg", xs, ys)
+                ssim = np.asarray(state.validation_ssim, float)
+                if len(ssim):
+                    implot.set_axes(implot.ImAxis_.x1, implot.ImAxis_.y2)
+                    implot.plot_line(f"SSIM-fg ({SSIM_VIEWS} views)", xs[: len(ssim)], ssim)
             implot.end_plot()
         imgui.end()
 

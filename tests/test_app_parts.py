@@ -143,6 +143,7 @@ def test_training_runs_off_thread_and_reports(small_demo):
     assert state.phase == "done" and state.step == 12
     assert state.steps == list(range(1, 13)) and all(math.isfinite(x) for x in state.losses)
     assert state.validation_steps == [4, 8, 12]
+    assert len(state.validation_ssim) == 3 and all(0 < x <= 1 for x in state.validation_ssim)
     assert math.isfinite(state.bicubic_psnr) and math.isfinite(state.gain)
     assert state.textures[0].shape == (32, 32, 3)
     assert [level.shape[:2] for level in state.chains[0]][:3] == [(32, 32), (16, 16), (8, 8)]
