@@ -241,7 +241,7 @@ class App:
             report,
         )
         written = export(session.mesh, done.result, output, self.overwrite)
-        document = report_document(job, done, time.perf_counter() - training.started)
+        document = report_document(job, done, training.seconds)
         text = _json(document)
         write_atomically(report, lambda tmp: tmp.write_text(text))
         written.append(report)

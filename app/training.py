@@ -131,6 +131,7 @@ class Training:
         self.state = TrainingState(total_steps=settings.steps or 0)
         self.thread = threading.Thread(target=self._run, name="geoscaler-training", daemon=True)
         self.started = 0.0
+        self.seconds = 0.0  # wall time of the whole run, set when it ends
         self._last_snapshot = 0.0
 
     def start(self) -> None:
@@ -218,6 +219,8 @@ class Training:
             )
         except Exception as error:  # shown in the UI; the app keeps running
             self._set(phase="failed", error=f"{type(error).__name__}: {error}")
+        finally:
+            self.seconds = time.perf_counter() - self.started
 
     @torch.no_grad()
     def _ssim(self, textures: list[torch.Tensor | None]) -> float:
