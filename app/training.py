@@ -208,6 +208,7 @@ class Training:
             )
             rows = {row["method"]: row for row in done.rows}
             best = rows[settings.method]["psnr_fg"]
+            self.seconds = time.perf_counter() - self.started
             textures = [None if t is None else t[..., :3] for t in done.result.textures]
             self._set(
                 result=done,
@@ -218,9 +219,8 @@ class Training:
                 texture_version=self.state.texture_version + 1,
             )
         except Exception as error:  # shown in the UI; the app keeps running
-            self._set(phase="failed", error=f"{type(error).__name__}: {error}")
-        finally:
             self.seconds = time.perf_counter() - self.started
+            self._set(phase="failed", error=f"{type(error).__name__}: {error}")
 
     @torch.no_grad()
     def _ssim(self, textures: list[torch.Tensor | None]) -> float:
