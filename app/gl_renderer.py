@@ -166,6 +166,7 @@ class Surface:
     """A textured look of the mesh: one texture per material and the UVs they use.
 
     Args:
+        renderer: the mesh's renderer (its context and geometry).
         textures: per material ``(H, W, C)`` uint8 sRGB texture, or None (untextured).
         uvs: ``(V, 2)`` UVs for these textures, or None for the mesh's own.
         chains: the textures' :func:`srgb_mip_chain`, when already built (e.g. by a worker).

@@ -163,11 +163,13 @@ class App:
     # ----------------------------------------------------------------- actions
 
     def guard(self, action: Callable[[], object]) -> None:
-        """Run a UI action; a GeoscalerError or OSError becomes the error line."""
+        """Run a UI action; any error it raises becomes the error line, the app goes on."""
         try:
             action()
-        except (GeoscalerError, OSError, ValueError) as error:
+        except (GeoscalerError, OSError) as error:
             self.error = str(error)
+        except Exception as error:
+            self.error = f"{type(error).__name__}: {error}"
 
     def set_scale(self, scale: int) -> None:
         assert self.session is not None
@@ -212,9 +214,10 @@ class App:
         self.views.dirty = True
 
     def bookmark_view(self) -> None:
+        """Bookmark the current camera (saved to the output folder at once)."""
         assert self.session is not None
         prepare_folder(self.out_dir)
-        self.guard(lambda: self.session.bookmarks.add(self.views.orbit))
+        self.session.bookmarks.add(self.views.orbit)
 
     def export(self) -> list[Path]:
         """Write the mesh with the new textures (the CLI's exporter) and its JSON report."""

@@ -247,7 +247,7 @@ class BookmarksPanel:
         imgui.begin("Bookmarks")
         bookmarks = app.session.bookmarks
         if imgui.button("Bookmark this view"):
-            app.bookmark_view()
+            app.guard(app.bookmark_view)
             self.selected = len(bookmarks.items) - 1
         imgui.same_line()
         imgui.text_disabled(str(bookmarks.path))
