@@ -123,18 +123,6 @@ def cmd_demo(args: argparse.Namespace) -> None:
     demo(args.out, args.device)
 
 
-def cmd_compare(args: argparse.Namespace) -> None:
-    from geoscaler.compare import command
-
-    command(args)
-
-
-def cmd_bench(args: argparse.Namespace) -> None:
-    from geoscaler.bench import command
-
-    command(args)
-
-
 def cmd_view(args: argparse.Namespace) -> None:
     try:  # the app's dependencies are an extra: geoscaler works without them
         from geoscaler.app.main import run
@@ -147,6 +135,18 @@ def cmd_view(args: argparse.Namespace) -> None:
     if mesh is not None and not mesh.is_file():
         raise GeoscalerError(f"{mesh}: no such file")
     run(mesh, Path(args.out), method=args.method, scale=args.scale)
+
+
+def cmd_compare(args: argparse.Namespace) -> None:
+    from geoscaler.compare import command
+
+    command(args)
+
+
+def cmd_bench(args: argparse.Namespace) -> None:
+    from geoscaler.bench import command
+
+    command(args)
 
 
 def _add_method_arguments(parser: argparse.ArgumentParser, scales: list[int]) -> None:
