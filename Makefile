@@ -7,25 +7,50 @@ PY := $(VENV)/bin/python
 export MALLOC_MMAP_THRESHOLD_ := 2000000000
 export MALLOC_TRIM_THRESHOLD_ := 20000000000
 
-.PHONY: setup test demo lint bench clean
+.PHONY: setup system-packages test demo lint bench bench-app screenshot clean
+
+# The app's tests need EGL (headless OpenGL, Mesa llvmpipe without a GPU) and Xvfb. `make test`
+# installs them when missing and it runs as root (CI); otherwise it says so and those tests skip.
+GL_PACKAGES := libegl1 libgl1 xvfb xauth
+XVFB := xvfb-run -a -s "-screen 0 1600x1000x24"
 
 setup: $(VENV)/.installed
 
-$(VENV)/.installed: pyproject.toml
+$(VENV)/.installed: pyproject.toml setup.py
 	python3 -m venv $(VENV)
 	$(PY) -m pip install -q --disable-pip-version-check torch==2.13.0
-	$(PY) -m pip install -q --disable-pip-version-check -e '.[dev]'
+	$(PY) -m pip install -q --disable-pip-version-check -e '.[dev,app]'
 	touch $@
 
-test: setup
-	$(PY) -m ruff check geoscaler tests benchmarks
-	$(PY) -m pytest -q
+system-packages:
+	@missing=""; for p in $(GL_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -z "$$missing" ]; then exit 0; fi; \
+	if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  echo "installing$$missing for the app's tests"; \
+	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing \
+	    >/dev/null) || echo "warning: could not install$$missing"; \
+	else echo "note: missing$$missing (not root): the app's GL and GUI tests will skip"; fi
+
+# Under xvfb-run the app's tests must run: GEOSCALER_REQUIRE_GL=1 turns their skips into failures.
+test: setup system-packages
+	$(PY) -m ruff check geoscaler app tests benchmarks setup.py
+	if command -v xvfb-run >/dev/null; then \
+	  GEOSCALER_REQUIRE_GL=1 $(XVFB) $(PY) -m pytest -q; \
+	else $(PY) -m pytest -q; fi
 
 demo: setup
 	$(VENV)/bin/geoscaler demo
 
 bench: setup
 	$(PY) benchmarks/bench_renderer.py
+
+# Frames per second of the app while it trains (README figure).
+bench-app: setup system-packages
+	$(XVFB) $(PY) benchmarks/bench_app.py
+
+# Re-make docs/app.png, the README's screenshot, with the GUI test.
+screenshot: setup system-packages
+	GEOSCALER_UPDATE_SCREENSHOT=1 $(XVFB) $(PY) -m pytest -q tests/test_app_gui.py
 
 clean:
 	rm -rf $(VENV) *.egg-info .pytest_cache .ruff_cache

@@ -123,6 +123,20 @@ def cmd_demo(args: argparse.Namespace) -> None:
     demo(args.out, args.device)
 
 
+def cmd_view(args: argparse.Namespace) -> None:
+    try:  # the app's dependencies are an extra: geoscaler works without them
+        from geoscaler.app.main import run
+    except ImportError as error:
+        raise GeoscalerError(
+            f"the desktop app needs its extra dependencies ({error}); "
+            "install them with: pip install 'geoscaler[app]'"
+        ) from None
+    mesh = None if args.mesh is None else Path(args.mesh)
+    if mesh is not None and not mesh.is_file():
+        raise GeoscalerError(f"{mesh}: no such file")
+    run(mesh, Path(args.out), method=args.method, scale=args.scale)
+
+
 def cmd_compare(args: argparse.Namespace) -> None:
     from geoscaler.compare import command
 
@@ -285,6 +299,18 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", default=str(DEFAULT_DEMO_DIR), help="folder (default assets/)")
     _add_device_argument(demo)
     demo.set_defaults(run=cmd_demo)
+
+    view = commands.add_parser(
+        "view",
+        help="the desktop app: original and downsampled views side by side, live optimisation",
+        description="Open MESH (the built-in demo asset when none is given) in the desktop app. "
+        "Exports, screenshots and bookmarks are written to --out.",
+    )
+    view.add_argument("mesh", nargs="?", metavar="MESH", help="OBJ, glTF or GLB file")
+    view.add_argument("--out", default=".", help="folder for exports and bookmarks (default .)")
+    view.add_argument("--method", default="direct", help="method at start (default direct)")
+    view.add_argument("--scale", type=_scale_factor, default=4, help="scale at start (default 4)")
+    view.set_defaults(run=cmd_view)
 
     compare = commands.add_parser(
         "compare", help="compare downsampling methods on one mesh (protocol metrics, pictures)"

@@ -414,6 +414,7 @@ def downsample(
     progress: Progress | None = None,
     controller: Controller | None = None,
     views: Sequence[int] | None = None,
+    q: ViewSet | None = None,
 ) -> Downsampled:
     """Run ``method`` on ``mesh`` at ``scale`` and score it, bicubic and Lanczos on Q.
 
@@ -426,13 +427,17 @@ def downsample(
         progress: the bar to drive (None: silent).
         controller: stops the method early (the best state so far is returned).
         views: protocol view indices standing for Q (None: all 60, the protocol).
+        q: Q already rasterised for ``views`` (e.g. by the app, which scores bicubic on it
+            before the method starts); its caching is then not counted in the method's time.
     """
     options = options or check_options(method)
     controller = controller or Controller()
     start = time.perf_counter()
-    renderer = RENDERER(mesh, options.device)
     cameras = protocol_cameras(VALIDATION_DISTANCE, views)
-    q = ViewSet(renderer, cameras, progress.caching_q if progress else None)
+    if q is None:
+        report = progress.caching_q if progress else None
+        q = ViewSet(RENDERER(mesh, options.device), cameras, report)
+    renderer = q.renderer
     q_seconds = time.perf_counter() - start
 
     learned = is_learned(method)

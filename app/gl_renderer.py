@@ -1,0 +1,305 @@
+"""The PROTOCOL.md renderer in OpenGL (moderngl): the GLSL twin of :mod:`geoscaler.render`.
+
+A view is drawn into a float framebuffer at ``supersample`` x the image size (linear light,
+depth-tested, no culling), box-averaged and encoded to sRGB by a second pass. Textures are
+``GL_SRGB8_ALPHA8`` with their mip chain built like :func:`geoscaler.texture.build_mip_chain`
+(linear-light 2 x 2 box, odd rows/columns dropped) and uploaded level by level, so the hardware
+decodes sRGB and filters trilinearly over the same levels as the torch sampler.
+``tests/test_gl_renderer.py`` holds the two renderers to the same pixels.
+
+Works in any moderngl context: the app's window, or a headless EGL context
+(:func:`headless_context`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import moderngl
+import numpy as np
+import torch
+
+from geoscaler.baselines import reference_texture
+from geoscaler.cameras import Camera
+from geoscaler.errors import GeoscalerError
+from geoscaler.mesh import TexturedMesh
+from geoscaler.texture import build_mip_chain, linear_to_srgb, texture_to_linear
+
+GL_SRGB8_ALPHA8 = 0x8C43
+SHADER_DIR = Path(__file__).resolve().parent.parent / "shaders"
+"""``shaders/`` of the source tree (``app/..``), or ``geoscaler/shaders`` once installed."""
+
+
+def shader_source(name: str) -> str:
+    """The text of ``shaders/<name>``."""
+    path = SHADER_DIR / name
+    if not path.is_file():
+        raise GeoscalerError(f"shader {name} not found in {SHADER_DIR}; reinstall geoscaler[app]")
+    return path.read_text()
+
+
+def program(ctx: moderngl.Context, vertex: str, fragment: str) -> moderngl.Program:
+    """Compile and link two shader files."""
+    return ctx.program(vertex_shader=shader_source(vertex), fragment_shader=shader_source(fragment))
+
+
+def use_screen(ctx: moderngl.Context) -> None:
+    """Bind the window's framebuffer again (a headless context has none)."""
+    if ctx.screen is not None:
+        ctx.screen.use()
+
+
+def headless_context() -> moderngl.Context:
+    """An offscreen OpenGL 4.5 context through EGL (Mesa llvmpipe on machines without a GPU).
+
+    Raises:
+        GeoscalerError: no EGL/OpenGL here, with what to install.
+    """
+    try:
+        return moderngl.create_standalone_context(backend="egl", require=450)
+    except Exception as error:  # moderngl raises plain Exception for a missing library
+        raise GeoscalerError(
+            f"no headless OpenGL 4.5 context ({error}); install EGL and Mesa "
+            "(apt-get install libegl1 libgl1)"
+        ) from error
+
+
+def to_rgba(texture: np.ndarray) -> np.ndarray:
+    """``(H, W, C)`` uint8 texture, C in 1..4, to ``(H, W, 4)`` (grey broadcast, alpha 255)."""
+    if texture.ndim == 2:
+        texture = texture[..., None]
+    rgb = texture[..., :3] if texture.shape[2] >= 3 else np.repeat(texture[..., :1], 3, axis=2)
+    alpha = np.full(texture.shape[:2] + (1,), 255, dtype=np.uint8)
+    return np.ascontiguousarray(np.concatenate([rgb, alpha], axis=2))
+
+
+def srgb_mip_chain(texture: np.ndarray) -> list[np.ndarray]:
+    """The protocol's mip chain of an 8-bit sRGB texture, each level as 8-bit sRGB RGBA.
+
+    Level 0 is the texture itself; coarser levels are 2 x 2 box averages in linear light
+    (:func:`geoscaler.texture.build_mip_chain`), encoded and rounded to 8 bits to be stored
+    in a ``GL_SRGB8_ALPHA8`` texture, as a GPU stores generated mip levels.
+
+    Returns:
+        Levels ``(H_l, W_l, 4)`` uint8, row 0 at the top.
+    """
+    rgba = to_rgba(texture)
+    with torch.no_grad():
+        levels = build_mip_chain(texture_to_linear(rgba))
+    chain = [rgba]
+    for level in levels[1:]:
+        rgb = linear_to_srgb(level).mul(255.0).round().to(torch.uint8).numpy()
+        alpha = np.full(rgb.shape[:2] + (1,), 255, dtype=np.uint8)
+        chain.append(np.ascontiguousarray(np.concatenate([rgb, alpha], axis=2)))
+    return chain
+
+
+def upload_texture(ctx: moderngl.Context, chain: list[np.ndarray]) -> moderngl.Texture:
+    """A ``GL_SRGB8_ALPHA8`` texture with a mip chain, repeat addressing, trilinear filtering.
+
+    Args:
+        chain: the levels from :func:`srgb_mip_chain` (built on any thread; uploading is quick).
+
+    Image rows are flipped on upload so that GL's ``t`` equals the mesh's ``v`` (row 0 of the
+    image is ``v = 1``); each level is flipped after it is built, so odd-size levels drop the
+    same row as the torch chain does.
+    """
+    height, width = chain[0].shape[:2]
+    gl_texture = ctx.texture((width, height), 4, internal_format=GL_SRGB8_ALPHA8)
+    gl_texture.build_mipmaps(0, len(chain) - 1)  # allocates every level
+    for index, level in enumerate(chain):
+        gl_texture.write(np.ascontiguousarray(level[::-1]).tobytes(), level=index, alignment=1)
+    gl_texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+    gl_texture.repeat_x = gl_texture.repeat_y = True
+    return gl_texture
+
+
+def pan_matrix(pan: tuple[float, float]) -> np.ndarray:
+    """``(4, 4)`` shift of the image by ``pan`` in normalised device units (applied to clip)."""
+    shift = np.eye(4)
+    shift[0, 3], shift[1, 3] = pan
+    return shift
+
+
+class Target:
+    """Where one view is drawn: a supersampled float framebuffer and the resolved image.
+
+    Attributes:
+        image: ``(size, size)`` RGBA8 texture, sRGB-encoded colour, opaque (shown by the app).
+        covered: ``(size, size)`` R8 texture, 1 where the mesh covers any supersample.
+    """
+
+    def __init__(self, ctx: moderngl.Context, size: int, supersample: int):
+        self.size = size
+        self.supersample = supersample
+        side = size * supersample
+        self.samples = ctx.texture((side, side), 4, dtype="f4")
+        self.samples.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.depth = ctx.depth_renderbuffer((side, side))
+        self.draw_fbo = ctx.framebuffer([self.samples], self.depth)
+        self.image = ctx.texture((size, size), 4)
+        self.covered = ctx.texture((size, size), 1)
+        self.resolve_fbo = ctx.framebuffer([self.image, self.covered])
+
+    def read(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(image (size, size, 3) uint8 sRGB, foreground (size, size) bool)``, row 0 on top."""
+        size = self.size
+        rgba = np.frombuffer(self.resolve_fbo.read(components=4, attachment=0), np.uint8)
+        mask = np.frombuffer(self.resolve_fbo.read(components=1, attachment=1), np.uint8)
+        image = rgba.reshape(size, size, 4)[::-1, :, :3]
+        return np.ascontiguousarray(image), np.ascontiguousarray(mask.reshape(size, size)[::-1] > 0)
+
+    def release(self) -> None:
+        for thing in (
+            self.draw_fbo,
+            self.resolve_fbo,
+            self.samples,
+            self.depth,
+            self.image,
+            self.covered,
+        ):
+            thing.release()
+
+
+class Surface:
+    """A textured look of the mesh: one texture per material and the UVs they use.
+
+    Args:
+        renderer: the mesh's renderer (its context and geometry).
+        textures: per material ``(H, W, C)`` uint8 sRGB texture, or None (untextured).
+        uvs: ``(V, 2)`` UVs for these textures, or None for the mesh's own.
+        chains: the textures' :func:`srgb_mip_chain`, when already built (e.g. by a worker).
+    """
+
+    def __init__(
+        self,
+        renderer: GLRenderer,
+        textures: Sequence[np.ndarray | None],
+        uvs: np.ndarray | None = None,
+        chains: Sequence[list[np.ndarray] | None] | None = None,
+    ):
+        ctx = renderer.ctx
+        if len(textures) != len(renderer.mesh.materials):
+            raise GeoscalerError(
+                f"{len(textures)} textures for {len(renderer.mesh.materials)} materials"
+            )
+        if chains is None:
+            chains = [None if t is None else srgb_mip_chain(t) for t in textures]
+        self.textures = [None if c is None else upload_texture(ctx, c) for c in chains]
+        self.levels = [0 if c is None else len(c) for c in chains]
+        uvs = renderer.mesh.uvs if uvs is None else uvs
+        self.uv_buffer = ctx.buffer(np.ascontiguousarray(uvs, dtype=np.float32).tobytes())
+        self.vao = ctx.vertex_array(
+            renderer.mesh_program,
+            [(renderer.positions, "3f", "position"), (self.uv_buffer, "2f", "uv")],
+            renderer.indices,
+        )
+
+    def release(self) -> None:
+        for texture in self.textures:
+            if texture is not None:
+                texture.release()
+        self.vao.release()
+        self.uv_buffer.release()
+
+
+class GLRenderer:
+    """Renders one mesh, normalised per the protocol, from protocol cameras.
+
+    Args:
+        ctx: an OpenGL >= 4.5 moderngl context (``dFdxFine``).
+        mesh: the mesh; its geometry is fixed for the renderer's lifetime.
+        image_size: output image side in pixels (the protocol's is 512).
+        supersample: samples per pixel side (the protocol's is 2).
+    """
+
+    def __init__(
+        self,
+        ctx: moderngl.Context,
+        mesh: TexturedMesh,
+        image_size: int = 512,
+        supersample: int = 2,
+    ):
+        self.ctx = ctx
+        self.mesh = mesh
+        self.image_size = image_size
+        self.supersample = supersample
+        self.mesh_program = program(ctx, "mesh.vert", "mesh.frag")
+        self.resolve_program = program(ctx, "fullscreen.vert", "resolve.frag")
+        self.empty_vao = ctx.vertex_array(self.resolve_program, [])
+        order = np.argsort(mesh.face_material, kind="stable")
+        faces = np.asarray(mesh.faces, dtype=np.int32)[order]
+        counts = np.bincount(mesh.face_material, minlength=len(mesh.materials))
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        self.ranges = [(int(s) * 3, int(c) * 3) for s, c in zip(starts, counts, strict=True)]
+        positions = np.ascontiguousarray(mesh.normalized_positions(), dtype=np.float32)
+        self.positions = ctx.buffer(positions.tobytes())
+        self.indices = ctx.buffer(np.ascontiguousarray(faces).tobytes())
+        self.factors = [tuple(float(x) for x in m.base_color_factor[:3]) for m in mesh.materials]
+
+    def reference_surface(self) -> Surface:
+        """The mesh's own textures as the protocol's reference maps (larger than 2048 reduced)."""
+        return Surface(
+            self,
+            [
+                None if m.base_color_texture is None else reference_texture(m.base_color_texture)
+                for m in self.mesh.materials
+            ],
+        )
+
+    def target(self) -> Target:
+        """A new render target of this renderer's size and supersampling."""
+        return Target(self.ctx, self.image_size, self.supersample)
+
+    def preview_target(self) -> Target:
+        """A target 8 times cheaper to fill: half the image size, no supersampling."""
+        return Target(self.ctx, self.image_size // 2, 1)
+
+    def render(
+        self,
+        camera: Camera,
+        surface: Surface,
+        target: Target,
+        pan: tuple[float, float] = (0.0, 0.0),
+    ) -> Target:
+        """Draw ``surface`` from ``camera`` into ``target`` (its ``image`` and ``covered``).
+
+        Args:
+            pan: image shift in normalised device units (the app's pan; 0 for protocol views).
+        """
+        ctx = self.ctx
+        clip = pan_matrix(pan) @ camera.clip_matrix()
+        target.draw_fbo.use()
+        target.draw_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        ctx.depth_func = "<"
+        prog = self.mesh_program
+        prog["clip_from_world"].write(clip.T.astype(np.float32).tobytes())
+        for index, (first, count) in enumerate(self.ranges):
+            if count == 0:
+                continue
+            texture = surface.textures[index]
+            prog["textured"] = texture is not None
+            prog["base_color_factor"] = self.factors[index]
+            if texture is not None:
+                texture.use(0)
+                prog["base_color"] = 0
+                prog["max_level"] = float(surface.levels[index] - 1)
+            surface.vao.render(moderngl.TRIANGLES, vertices=count, first=first)
+        ctx.disable(moderngl.DEPTH_TEST)
+        target.resolve_fbo.use()
+        target.samples.use(0)
+        self.resolve_program["samples"] = 0
+        self.resolve_program["factor"] = target.supersample
+        self.empty_vao.render(moderngl.TRIANGLES, vertices=3)
+        return target
+
+    def render_image(self, camera: Camera, surface: Surface) -> tuple[np.ndarray, np.ndarray]:
+        """``(image (H, W, 3) uint8 sRGB, foreground (H, W) bool)`` of one view, row 0 on top."""
+        target = self.target()
+        try:
+            return self.render(camera, surface, target).read()
+        finally:
+            target.release()

@@ -1,0 +1,360 @@
+"""``geoscaler view``: the desktop app (glfw window, imgui-bundle UI, moderngl views).
+
+:class:`App` holds the state every window reads: the open :class:`Session`, the running
+:class:`Training`, errors and messages. Its ``gui`` runs once a frame on the UI thread: it
+collects finished work (a mesh loaded, live textures from the optimiser), then draws the
+windows. Slow work never runs here: meshes load and methods run on worker threads.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import moderngl
+import numpy as np
+from imgui_bundle import ImVec2, hello_imgui, imgui, immapp
+
+from geoscaler.downsample import Job, check_output_name, check_scale_fits, export, report_document
+from geoscaler.errors import GeoscalerError
+from geoscaler.files import check_output, prepare_folder, save_png, write_atomically
+from geoscaler.mesh import SUPPORTED_SUFFIXES, TexturedMesh, load_mesh
+from geoscaler.procedural import demo_mesh
+
+from .panels import BookmarksPanel, ExportPanel, OptimisePanel, PlotsPanel, UVPanel
+from .session import DEMO_NAME, Session
+from .training import Training, TrainingSettings, TrainingState
+from .views import ViewsPanel
+
+WINDOW_SIZE = (1280, 800)
+LAYOUT = {  # window -> (x, y, width, height) at first use, for a 1280 x 800 window; the
+    # order is the order of the panels in App.gui
+    "Views": (0, 20, 760, 470),
+    "Optimise": (760, 20, 520, 290),
+    "Plots": (760, 310, 520, 220),
+    "UV inspector": (0, 490, 760, 310),
+    "Bookmarks": (760, 530, 520, 150),
+    "Export": (760, 680, 520, 120),
+}
+MAX_FPS = 60.0
+"""Frames a second at most: the rest of the time (and the GIL) goes to the optimiser."""
+
+
+class App:
+    """The app's state and frame loop.
+
+    Args:
+        mesh_path: the mesh to open first (None: the built-in demo asset).
+        out_dir: where exports, screenshots and bookmarks go (created when first needed).
+        settings: the optimiser's starting settings.
+        demo: builds the demo asset (tests pass a smaller one).
+    """
+
+    def __init__(
+        self,
+        mesh_path: Path | None = None,
+        out_dir: Path = Path("."),
+        settings: TrainingSettings | None = None,
+        demo: Callable[[], TexturedMesh] = demo_mesh,
+    ):
+        self.first_path = mesh_path
+        self.out_dir = Path(out_dir)
+        self.settings = settings or TrainingSettings()
+        self.demo = demo
+        self.ctx: moderngl.Context | None = None
+        self.session: Session | None = None
+        self.training: Training | None = None
+        self.state: TrainingState | None = None
+        self.shown_version = 0
+        self.error: str | None = None
+        self.messages: list[str] = []
+        self.export_name = ""
+        self.overwrite = False
+        self.open_path = ""
+        self.frames = 0
+        self.last_frame = 0.0
+        self.loader = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="geoscaler-load")
+        self.loading: tuple[Path | None, concurrent.futures.Future] | None = None
+        self.dialog = None
+        self.views = ViewsPanel()
+        self.optimise = OptimisePanel()
+        self.plots = PlotsPanel()
+        self.uv = UVPanel()
+        self.bookmarks = BookmarksPanel()
+        self.exporter = ExportPanel()
+
+    # ----------------------------------------------------------------- start-up and files
+
+    def post_init(self) -> None:
+        """Called by hello_imgui once the window and its GL context exist."""
+        self.ctx = moderngl.create_context()
+        self._accept_drops()
+        self.open(self.first_path)
+        self.wait_for_load()
+
+    def _accept_drops(self) -> None:
+        try:
+            import glfw
+            from imgui_bundle import glfw_utils
+
+            window = glfw_utils.glfw_window_hello_imgui()
+            glfw.set_drop_callback(window, lambda _window, paths: self.open(Path(paths[0])))
+        except Exception as error:  # no glfw backend: the file dialog still works
+            self.messages.append(f"drag and drop unavailable: {error}")
+
+    def open(self, path: Path | None) -> None:
+        """Load ``path`` (None: the demo asset) on a worker thread; shown once loaded."""
+        if path is not None and path.suffix.lower() not in SUPPORTED_SUFFIXES:
+            self.error = f"cannot open {path}: not a mesh ({', '.join(SUPPORTED_SUFFIXES)})"
+            return
+        task = self.demo if path is None else (lambda: load_mesh(path))
+        self.loading = (path, self.loader.submit(task))
+
+    def wait_for_load(self, timeout: float | None = None) -> None:
+        if self.loading is not None:
+            concurrent.futures.wait([self.loading[1]], timeout)
+            self._collect_load()
+
+    def _collect_load(self) -> None:
+        if self.loading is None or not self.loading[1].done():
+            return
+        path, future = self.loading
+        self.loading = None
+        try:
+            self._show(future.result(), path)
+        except Exception as error:  # a bad file must not end the app
+            self.error = f"cannot open {path or DEMO_NAME}: {error}"
+
+    def _show(self, mesh: TexturedMesh, path: Path | None) -> None:
+        check_scale_fits(mesh, self.settings.scale)
+        assert self.ctx is not None
+        session = Session(self.ctx, mesh, path, self.out_dir, self.settings.scale)
+        if self.training is not None:
+            self.training.stop()
+        self.training, self.state, self.shown_version = None, None, 0
+        if self.session is not None:
+            self.session.release()
+        self.session = session
+        self.views.dirty = True
+        self.uv.reset()
+        self.export_name = str(self.out_dir / f"{session.name}_x{self.settings.scale}.glb")
+        self.messages.append(f"opened {session.display_path}: {len(mesh.faces):,} faces")
+
+    def open_dialog(self) -> None:
+        try:
+            from imgui_bundle import portable_file_dialogs as pfd
+
+            self.dialog = pfd.open_file(
+                "Open a mesh", str(self.out_dir), ["Meshes", "*.obj *.gltf *.glb", "All", "*"]
+            )
+        except Exception as error:
+            self.error = f"no file dialog here ({error}); type a path in File > Open path"
+
+    def _collect_dialog(self) -> None:
+        if self.dialog is not None and self.dialog.ready():
+            files = self.dialog.result()
+            self.dialog = None
+            if files:
+                self.open(Path(files[0]))
+
+    # ----------------------------------------------------------------- actions
+
+    def guard(self, action: Callable[[], object]) -> None:
+        """Run a UI action; any error it raises becomes the error line, the app goes on."""
+        try:
+            action()
+        except (GeoscalerError, OSError) as error:
+            self.error = str(error)
+        except Exception as error:
+            self.error = f"{type(error).__name__}: {error}"
+
+    def set_scale(self, scale: int) -> None:
+        assert self.session is not None
+        try:
+            check_scale_fits(self.session.mesh, scale)
+        except GeoscalerError as error:
+            self.error = str(error)
+            return
+        self.settings.scale = scale
+        if self.state is None:
+            self.session.set_bicubic(scale)
+            self.views.dirty = True
+        self.export_name = str(self.out_dir / f"{self.session.name}_x{scale}.glb")
+
+    def start_training(self) -> None:
+        assert self.session is not None
+        settings = dataclasses.replace(self.settings, optimize=dict(self.settings.optimize))
+        try:
+            self.training = Training(self.session.mesh, settings)
+        except GeoscalerError as error:
+            self.error = str(error)
+            return
+        self.state, self.shown_version = None, 0
+        self.training.start()
+
+    def _collect_training(self) -> None:
+        if self.training is None or self.session is None:
+            return
+        state = self.state = self.training.read()
+        if state.error and self.error is None:
+            self.error = f"the optimisation failed: {state.error}"
+        if state.textures is None or state.texture_version == self.shown_version:
+            return
+        settings = self.training.settings
+        label = f"{settings.method} x{settings.scale}, step {state.step}"
+        uvs = None
+        if state.result is not None:
+            label = f"{settings.method} x{settings.scale} (best, as exported)"
+            uvs = state.result.result.uvs
+        self.session.set_candidate(state.textures, uvs, label, state.chains)
+        self.shown_version = state.texture_version
+        self.views.dirty = True
+
+    def bookmark_view(self) -> None:
+        """Bookmark the current camera (saved to the output folder at once)."""
+        assert self.session is not None
+        prepare_folder(self.out_dir)
+        self.session.bookmarks.add(self.views.orbit)
+
+    def export(self) -> list[Path]:
+        """Write the mesh with the new textures (the CLI's exporter) and its JSON report."""
+        assert self.session is not None and self.training is not None
+        done = self.state.result if self.state is not None else None
+        if done is None:
+            raise GeoscalerError("nothing to export yet: run a method first")
+        session, training = self.session, self.training
+        output = Path(self.export_name)
+        prepare_folder(output.parent)
+        mesh_path = session.mesh_path or Path(DEMO_NAME)
+        output = check_output_name(output, mesh_path, self.overwrite)
+        report = output.with_suffix(".json")
+        check_output(report, force=self.overwrite, inputs=[mesh_path, *session.mesh.source_files])
+        settings = training.settings
+        job = Job(
+            mesh_path,
+            session.mesh,
+            output,
+            settings.scale,
+            settings.method,
+            training.options,
+            self.overwrite,
+            report,
+        )
+        written = export(session.mesh, done.result, output, self.overwrite)
+        document = report_document(job, done, training.seconds)
+        text = _json(document)
+        write_atomically(report, lambda tmp: tmp.write_text(text))
+        written.append(report)
+        self.messages.append("wrote " + ", ".join(str(p) for p in written))
+        return written
+
+    def screenshot(self) -> Path:
+        """Save the two views (original | downsampled) as a new PNG in the output folder."""
+        assert self.session is not None
+        prepare_folder(self.out_dir)
+        (original, _), (candidate, _) = (t.read() for t in self.session.targets)
+        gap = np.zeros((original.shape[0], 8, 3), np.uint8)
+        picture = np.concatenate([original, gap, candidate], axis=1)
+        index = 1
+        while (path := self.out_dir / f"{self.session.name}_view_{index}.png").exists():
+            index += 1
+        save_png(path, picture)
+        self.messages.append(f"wrote {path}")
+        return path
+
+    # ----------------------------------------------------------------- the frame
+
+    def gui(self) -> None:
+        self._pace()
+        self.frames += 1
+        self._collect_load()
+        self._collect_dialog()
+        self._collect_training()
+        busy = self.training is not None and self.training.running
+        hello_imgui.get_runner_params().fps_idling.fps_idle = 30.0 if busy else 10.0
+        self._menu()
+        if self.session is None:
+            imgui.text("loading..." if self.loading else (self.error or "no mesh open"))
+            return
+        panels = (self.views, self.optimise, self.plots, self.uv, self.bookmarks, self.exporter)
+        for panel, (x, y, w, h) in zip(panels, LAYOUT.values(), strict=True):
+            imgui.set_next_window_pos(ImVec2(x, y), imgui.Cond_.first_use_ever)
+            imgui.set_next_window_size(ImVec2(w, h), imgui.Cond_.first_use_ever)
+            panel.draw(self)
+
+    def _pace(self) -> None:
+        """Sleep out the rest of a 1 / MAX_FPS frame."""
+        now = time.perf_counter()
+        wait = self.last_frame + 1.0 / MAX_FPS - now
+        if wait > 0:
+            time.sleep(wait)
+        self.last_frame = time.perf_counter()
+
+    def _menu(self) -> None:
+        if not imgui.begin_main_menu_bar():
+            return
+        if imgui.begin_menu("File"):
+            if imgui.menu_item_simple("Open..."):
+                self.open_dialog()
+            if imgui.menu_item_simple("Open the demo asset"):
+                self.open(None)
+            imgui.separator()
+            imgui.text("Open path (Enter):")
+            entered, self.open_path = imgui.input_text(
+                "##path", self.open_path, imgui.InputTextFlags_.enter_returns_true
+            )
+            if entered and self.open_path:
+                self.open(Path(self.open_path).expanduser())
+                imgui.close_current_popup()
+            imgui.separator()
+            if imgui.menu_item_simple("Quit"):
+                hello_imgui.get_runner_params().app_shall_exit = True
+            imgui.end_menu()
+        if self.session is not None:
+            imgui.text_disabled(
+                f"  {self.session.display_path}  (drop a mesh file here to open it)"
+            )
+        imgui.end_main_menu_bar()
+
+    def shutdown(self) -> None:
+        """Stop the optimiser and wait for it: a phase that cannot be cut short (view caching,
+        the final scoring) ends first, so that no worker outlives the interpreter."""
+        if self.training is not None:
+            self.training.stop()
+            self.training.wait()
+        self.loader.shutdown(wait=True, cancel_futures=True)
+
+    # ----------------------------------------------------------------- running
+
+    def runner_params(self) -> hello_imgui.RunnerParams:
+        """hello_imgui settings of the app's window."""
+        params = hello_imgui.RunnerParams()
+        params.app_window_params.window_title = "GeoScaler"
+        params.app_window_params.window_geometry.size = WINDOW_SIZE
+        params.imgui_window_params.default_imgui_window_type = (
+            hello_imgui.DefaultImGuiWindowType.no_default_window
+        )
+        params.ini_disable = True
+        params.callbacks.show_gui = self.gui
+        params.callbacks.post_init = self.post_init
+        params.callbacks.before_exit = self.shutdown
+        return params
+
+
+def add_ons() -> immapp.AddOnsParams:
+    return immapp.AddOnsParams(with_implot=True)
+
+
+def _json(document: dict) -> str:
+    from geoscaler.compare import dumps
+
+    return dumps(document) + "\n"
+
+
+def run(mesh_path: Path | None = None, out_dir: Path = Path("."), **settings) -> None:
+    """Open the app on ``mesh_path`` (None: the demo asset); returns when the window closes."""
+    app = App(mesh_path, out_dir, TrainingSettings(**settings))
+    immapp.run(app.runner_params(), add_ons())

@@ -1,0 +1,88 @@
+"""One open mesh in the app: its GL resources, the two looks compared, its outputs.
+
+The *original* look is the protocol's reference texture; the *candidate* look starts as bicubic
+at the chosen scale (what artists do today) and is replaced live by the optimiser's textures.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import moderngl
+import numpy as np
+
+from geoscaler.baselines import bicubic
+from geoscaler.mesh import TexturedMesh
+from geoscaler.methods import reference_textures
+
+from .bookmarks import Bookmarks
+from .gl_renderer import GLRenderer, Surface, Target
+
+DEMO_NAME = "geoscaler_demo"
+
+
+class Session:
+    """A loaded mesh and what the app draws of it.
+
+    Args:
+        ctx: the window's GL context.
+        mesh: the mesh.
+        mesh_path: its file (None for the built-in demo asset).
+        out_dir: where exports and the bookmarks file go.
+        scale: the scale of the starting (bicubic) candidate.
+    """
+
+    def __init__(
+        self,
+        ctx: moderngl.Context,
+        mesh: TexturedMesh,
+        mesh_path: Path | None,
+        out_dir: Path,
+        scale: int,
+        image_size: int = 512,
+    ):
+        self.mesh = mesh
+        self.mesh_path = mesh_path
+        self.name = DEMO_NAME if mesh_path is None else mesh_path.stem
+        self.out_dir = out_dir
+        self.renderer = GLRenderer(ctx, mesh, image_size=image_size)
+        self.references = reference_textures(mesh)
+        self.original = Surface(self.renderer, self.references)
+        self.candidate_textures: list[np.ndarray | None] = []
+        self.candidate_uvs: np.ndarray | None = None
+        self.candidate: Surface | None = None
+        self.candidate_label = ""
+        self.targets: tuple[Target, Target] = (self.renderer.target(), self.renderer.target())
+        previews = (self.renderer.preview_target(), self.renderer.preview_target())
+        self.previews: tuple[Target, Target] = previews
+        self.bookmarks = Bookmarks(out_dir / f"{self.name}.bookmarks.json", self.name)
+        self.set_bicubic(scale)
+
+    @property
+    def display_path(self) -> str:
+        return "built-in demo asset" if self.mesh_path is None else str(self.mesh_path)
+
+    def set_bicubic(self, scale: int) -> None:
+        """The candidate becomes bicubic at ``scale`` (raises GeoscalerError if too small)."""
+        textures = [None if t is None else bicubic(t, scale) for t in self.references]
+        self.set_candidate(textures, None, f"bicubic x{scale}")
+
+    def set_candidate(
+        self,
+        textures: list[np.ndarray | None],
+        uvs: np.ndarray | None,
+        label: str,
+        chains: list[list[np.ndarray] | None] | None = None,
+    ) -> None:
+        """Show ``textures`` (8-bit sRGB, one per material) with ``uvs`` as the candidate
+        (``chains``: their mip chains, if already built)."""
+        surface = Surface(self.renderer, textures, uvs, chains)
+        if self.candidate is not None:
+            self.candidate.release()
+        self.candidate, self.candidate_textures = surface, textures
+        self.candidate_uvs, self.candidate_label = uvs, label
+
+    def release(self) -> None:
+        for thing in (self.original, self.candidate, *self.targets, *self.previews):
+            if thing is not None:
+                thing.release()

@@ -1,0 +1,270 @@
+"""The optimisation as the app runs it: on a worker thread, observable from the UI thread.
+
+The worker rasterises the validation views, scores bicubic on them (the gain's zero), then runs
+:func:`geoscaler.downsample.downsample` -- the CLI's job -- with a
+:class:`~geoscaler.optimize.Controller` for pause/resume/stop and a progress callback that
+records the loss and validation PSNR and, a few times a second, pulls the current texture with
+:meth:`ProgressEvent.snapshot`. The UI thread only reads :class:`TrainingState` under its lock.
+
+On 2 cores the worker runs torch on one thread (``torch.set_num_threads(1)``, process-wide), so
+the UI thread and the GL driver keep the other core.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from geoscaler.cameras import VALIDATION_DISTANCE, VALIDATION_VIEWS
+from geoscaler.compare import protocol_cameras
+from geoscaler.downsample import (
+    Downsampled,
+    check_method,
+    check_options,
+    check_scale,
+    check_scale_fits,
+    downsample,
+    is_learned,
+)
+from geoscaler.evaluate import ViewSet
+from geoscaler.mesh import TexturedMesh
+from geoscaler.methods import run_method
+from geoscaler.metrics import evaluate
+from geoscaler.optimize import Controller, ProgressEvent
+from geoscaler.render import Renderer
+from geoscaler.texture import MipTexture, linear_to_texture, quantize_linear
+
+from .gl_renderer import srgb_mip_chain
+
+SNAPSHOT_INTERVAL = 0.5
+"""Seconds between live texture snapshots sent to the UI (each costs the worker a texture
+conversion and a mip chain, about 0.1 s for 1024 x 1024 on one core)."""
+TORCH_THREADS = 1
+SSIM_VIEWS = 6
+"""Validation views on which the worker also measures SSIM-fg at each validation (the loop
+itself validates on PSNR-fg only); a subset keeps it to about a second."""
+
+
+@dataclass
+class TrainingSettings:
+    """What to run.
+
+    Attributes:
+        method: a name from :data:`geoscaler.methods.METHODS`.
+        scale: reduction factor per side.
+        steps: step limit of learned methods (None: the method's default).
+        time_budget: seconds a learned method may spend (None: the CLI's default, 60).
+        views: validation views standing for Q (``VALIDATION_VIEWS`` = all 60, the protocol).
+        image_size: side of the torch renders (the protocol's 512; tests use less).
+        optimize: ``OptimizeConfig`` overrides for learned methods (tests use a small pool).
+    """
+
+    method: str = "direct"
+    scale: int = 4
+    steps: int | None = None
+    time_budget: float | None = None
+    views: int = VALIDATION_VIEWS
+    image_size: int = 512
+    optimize: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class TrainingState:
+    """What the UI shows; written by the worker, read under :attr:`Training.lock`."""
+
+    phase: str = "idle"
+    step: int = 0
+    total_steps: int = 0
+    caching: tuple[int, int] = (0, 0)
+    steps: list[float] = field(default_factory=list)
+    times: list[float] = field(default_factory=list)
+    losses: list[float] = field(default_factory=list)
+    validation_steps: list[float] = field(default_factory=list)
+    validation_times: list[float] = field(default_factory=list)
+    validation_psnr: list[float] = field(default_factory=list)
+    validation_ssim: list[float] = field(default_factory=list)
+    bicubic_psnr: float = math.nan
+    best_psnr: float = -math.inf
+    textures: list[np.ndarray | None] | None = None
+    chains: list[list[np.ndarray] | None] | None = None
+    texture_version: int = 0
+    result: Downsampled | None = None
+    error: str | None = None
+
+    @property
+    def gain(self) -> float:
+        """Best validation PSNR-fg minus bicubic's, dB (nan until both are known)."""
+        if not (math.isfinite(self.best_psnr) and math.isfinite(self.bicubic_psnr)):
+            return math.nan
+        return self.best_psnr - self.bicubic_psnr
+
+
+class Training:
+    """One run of a method on a mesh, on a daemon thread.
+
+    Args:
+        mesh: the mesh (read only).
+        settings: what to run.
+
+    Raises:
+        GeoscalerError: an unknown method, a bad scale, steps or time budget.
+    """
+
+    def __init__(self, mesh: TexturedMesh, settings: TrainingSettings):
+        check_method(settings.method)
+        check_scale_fits(mesh, check_scale(settings.scale))
+        self.mesh = mesh
+        self.settings = settings
+        self.options = check_options(
+            settings.method, "cpu", 0, settings.steps, settings.time_budget
+        )
+        if settings.optimize:
+            self.options.extra["optimize"] = dict(settings.optimize)
+        self.controller = Controller()
+        self.lock = threading.Lock()
+        self.state = TrainingState(total_steps=settings.steps or 0)
+        self.thread = threading.Thread(target=self._run, name="geoscaler-training", daemon=True)
+        self.started = 0.0
+        self.seconds = 0.0  # wall time of the whole run, set when it ends
+        self._last_snapshot = 0.0
+
+    def start(self) -> None:
+        self.started = time.perf_counter()
+        self.thread.start()
+
+    def pause(self) -> None:
+        self.controller.pause()
+        self._set(phase="paused")
+
+    def resume(self) -> None:
+        self.controller.resume()
+        self._set(phase="optimising")
+
+    def stop(self) -> None:
+        """Ask the method to stop; the best result so far is still scored and kept."""
+        self.controller.stop()
+
+    @property
+    def running(self) -> bool:
+        return self.thread.is_alive()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Wait for the worker; True when it has finished."""
+        self.thread.join(timeout)
+        return not self.thread.is_alive()
+
+    def read(self) -> TrainingState:
+        """A shallow copy of the state, consistent at one instant (lists are copied)."""
+        with self.lock:
+            state = TrainingState(**self.state.__dict__)
+            for name in (
+                "steps",
+                "times",
+                "losses",
+                "validation_steps",
+                "validation_times",
+                "validation_psnr",
+                "validation_ssim",
+            ):
+                setattr(state, name, list(getattr(state, name)))
+            return state
+
+    def _set(self, **values: Any) -> None:
+        with self.lock:
+            for name, value in values.items():
+                setattr(self.state, name, value)
+
+    def _run(self) -> None:
+        torch.set_num_threads(TORCH_THREADS)
+        try:
+            self._set(phase="caching validation views")
+            settings = self.settings
+            views = list(range(settings.views))
+            renderer = Renderer(self.mesh, "cpu", image_size=settings.image_size)
+            q = ViewSet(renderer, protocol_cameras(VALIDATION_DISTANCE, views), self._caching)
+            self.q = q
+            bicubic = run_method("bicubic", self.mesh, settings.scale)
+            bicubic_psnr = float(q.score(bicubic.textures)["psnr_fg"].mean())
+            learned = is_learned(settings.method)
+            self._set(
+                bicubic_psnr=bicubic_psnr,
+                phase="caching training views" if learned else "running " + settings.method,
+            )
+            self.options.on_event = self._on_event
+            done = downsample(
+                self.mesh,
+                settings.scale,
+                settings.method,
+                self.options,
+                controller=self.controller,
+                views=views,
+                q=q,
+            )
+            rows = {row["method"]: row for row in done.rows}
+            best = rows[settings.method]["psnr_fg"]
+            self.seconds = time.perf_counter() - self.started
+            textures = [None if t is None else t[..., :3] for t in done.result.textures]
+            self._set(
+                result=done,
+                best_psnr=best,
+                phase="done",
+                textures=textures,
+                chains=[None if t is None else srgb_mip_chain(t) for t in textures],
+                texture_version=self.state.texture_version + 1,
+            )
+        except Exception as error:  # shown in the UI; the app keeps running
+            self.seconds = time.perf_counter() - self.started
+            self._set(phase="failed", error=f"{type(error).__name__}: {error}")
+
+    @torch.no_grad()
+    def _ssim(self, textures: list[torch.Tensor | None]) -> float:
+        """Mean SSIM-fg of 8-bit-quantised ``textures`` over the first :data:`SSIM_VIEWS` of Q."""
+        q = self.q
+        views = range(min(SSIM_VIEWS, len(q)))
+        mips = [None if t is None else MipTexture(quantize_linear(t)) for t in textures]
+        images = q.render(mips, views=views)
+        scores = evaluate(images, q.references[: len(views)], q.foreground[: len(views)])
+        return float(scores["ssim_fg"].mean())
+
+    def _caching(self, done: int, total: int) -> None:
+        self._set(caching=(done, total))
+
+    def _on_event(self, event: ProgressEvent) -> None:
+        if event.phase == "caching":
+            self._set(caching=(event.done, event.total))
+            return
+        with self.lock:
+            state = self.state
+            state.step, state.total_steps = event.step, event.total_steps
+            if math.isfinite(event.best_psnr):
+                state.best_psnr = event.best_psnr
+            if event.phase == "step":
+                if not self.controller.paused:
+                    state.phase = "optimising"
+                state.steps.append(event.step)
+                state.times.append(event.elapsed)
+                state.losses.append(event.loss)
+            elif event.phase == "validation" and event.validation_psnr is not None:
+                state.validation_steps.append(event.step)
+                state.validation_times.append(event.elapsed)
+                state.validation_psnr.append(event.validation_psnr)
+            elif event.phase == "done":
+                state.phase = "scoring on the validation views"
+        if event.phase == "validation" and event.snapshot is not None:
+            ssim = self._ssim(event.snapshot())
+            with self.lock:
+                self.state.validation_ssim.append(ssim)
+        now = time.perf_counter()
+        if event.snapshot is not None and now - self._last_snapshot > SNAPSHOT_INTERVAL:
+            self._last_snapshot = now
+            textures = [None if t is None else linear_to_texture(t) for t in event.snapshot()]
+            chains = [None if t is None else srgb_mip_chain(t) for t in textures]
+            with self.lock:
+                self.state.textures, self.state.chains = textures, chains
+                self.state.texture_version += 1

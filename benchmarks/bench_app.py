@@ -1,0 +1,91 @@
+"""Frames per second of the desktop app while the optimiser trains.
+
+Opens the app on a mesh (default: the 16,384-face ycb_lego_duplo_a of ../shared/data, or the
+19,200-face demo asset ``demo_mesh(40)`` when that is absent), starts ``direct`` and, once
+optimisation steps run, counts frames for ``--seconds`` in two modes:
+
+- ``orbit``: the camera turns every frame, so both views (512 px, 2 x 2 supersampled) are
+  re-rendered every frame: what a user dragging the mouse sees;
+- ``still``: the camera rests; only the live texture updates re-render the downsampled view.
+
+The app's own pacing (at most 60 fps) stays on; hello_imgui's idling is off so that frames are
+not throttled for lack of input events. Run it under a display, e.g.::
+
+    xvfb-run -a -s "-screen 0 1600x1000x24" .venv/bin/python benchmarks/bench_app.py
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+DEFAULT_MESH = (
+    Path(__file__).resolve().parents[1].parent / "shared/data/ycb_lego_duplo_a/textured.obj"
+)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("mesh", nargs="?", help=f"mesh file (default {DEFAULT_MESH})")
+    parser.add_argument("--seconds", type=float, default=10.0, help="per mode (default 10)")
+    parser.add_argument("--views", type=int, default=8, help="validation views (default 8)")
+    args = parser.parse_args()
+
+    from imgui_bundle import hello_imgui
+
+    from geoscaler.app.main import App, add_ons
+    from geoscaler.app.training import TrainingSettings
+    from geoscaler.procedural import demo_mesh
+
+    path = Path(args.mesh) if args.mesh else (DEFAULT_MESH if DEFAULT_MESH.is_file() else None)
+    settings = TrainingSettings(method="direct", scale=4, time_budget=600.0, views=args.views)
+    app = App(path, Path(os.environ.get("TMPDIR", "/tmp")), settings, demo=lambda: demo_mesh(40))
+    frames: dict[str, list[float]] = {"orbit": [], "still": []}
+    started = {"at": None}
+
+    def gui() -> None:
+        if app.session is not None and app.training is None:
+            app.start_training()
+        app.gui()
+        hello_imgui.get_runner_params().fps_idling.enable_idling = False
+        state = app.state
+        if state is None or state.step < 1:
+            return  # still caching views: measure while steps run
+        now = time.perf_counter()
+        started["at"] = started["at"] or now
+        mode = "orbit" if now - started["at"] < args.seconds else "still"
+        if now - started["at"] > 2 * args.seconds:
+            hello_imgui.get_runner_params().app_shall_exit = True
+            return
+        frames[mode].append(now)
+        if mode == "orbit":
+            app.views.orbit.rotate(3.0, 0.0)  # as a mouse drag does
+            app.views.moved()
+
+    params = app.runner_params()
+    params.callbacks.show_gui = gui
+    from imgui_bundle import immapp
+
+    immapp.run(params, add_ons())
+    state = app.state
+    session = app.session
+    result = {
+        "mesh": session.display_path if session else None,
+        "faces": len(session.mesh.faces) if session else None,
+        "steps_during_run": state.step if state else 0,
+        "cpu_count": os.cpu_count(),
+    }
+    for mode, times in frames.items():
+        if len(times) > 1:
+            result[f"fps_{mode}"] = round((len(times) - 1) / (times[-1] - times[0]), 1)
+    print(json.dumps(result, indent=2))
+    if not frames["orbit"]:
+        sys.exit("no optimisation step ran: nothing was measured")
+
+
+if __name__ == "__main__":
+    main()

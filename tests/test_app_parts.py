@@ -1,0 +1,227 @@
+"""The app's parts that need no window: camera, bookmarks, UV inspector geometry, the training
+worker, and the UV pictures drawn headless."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+
+import numpy as np
+import pytest
+from app_support import gl_context, import_app_module
+
+from geoscaler.cameras import VALIDATION_DISTANCE
+from geoscaler.errors import GeoscalerError
+from geoscaler.procedural import demo_mesh
+
+
+@pytest.fixture(scope="module")
+def app_modules():
+    return {name: import_app_module(name) for name in ("orbit", "bookmarks", "uv_inspect")}
+
+
+@pytest.fixture(scope="module")
+def small_demo():
+    return demo_mesh(subdivisions=8, texture_size=128)
+
+
+def test_the_orbit_is_a_protocol_camera(app_modules):
+    orbit = app_modules["orbit"].Orbit(yaw=0.0, pitch=0.0)
+    camera = orbit.camera()
+    assert camera.direction == pytest.approx((0.0, 0.0, 1.0))
+    assert camera.distance == VALIDATION_DISTANCE
+    orbit.rotate(dx=-225.0, dy=0.0)  # 0.4 degrees a pixel: a quarter turn
+    assert orbit.camera().direction == pytest.approx((1.0, 0.0, 0.0), abs=1e-12)
+    orbit.rotate(dx=0.0, dy=1000.0)  # pitch stops short of the pole
+    assert orbit.pitch == 89.0
+    orbit.zoom(100)
+    assert orbit.distance == app_modules["orbit"].MIN_DISTANCE
+    orbit.shift(50.0, 25.0, view_pixels=100.0)
+    assert orbit.pan == (1.0, -0.5)
+    orbit.reset()
+    assert orbit == app_modules["orbit"].Orbit()
+
+
+def test_bookmarks_are_saved_and_read_back(app_modules, tmp_path):
+    Bookmarks = app_modules["bookmarks"].Bookmarks
+    Orbit = app_modules["orbit"].Orbit
+    path = tmp_path / "mesh.bookmarks.json"
+    marks = Bookmarks(path, "mesh")
+    marks.add(Orbit(10.0, 20.0, 3.0, (0.1, -0.2)))
+    marks.add(Orbit(), name="front")
+    marks.rename(0, "handle close-up")
+    assert json.loads(path.read_text())["mesh"] == "mesh"
+    again = Bookmarks(path, "mesh")
+    assert [b.name for b in again.items] == ["handle close-up", "front"]
+    assert again.items[0].orbit == Orbit(10.0, 20.0, 3.0, (0.1, -0.2))
+    again.remove(1)
+    assert [b.name for b in Bookmarks(path, "mesh").items] == ["handle close-up"]
+
+
+def test_a_broken_bookmarks_file_is_a_clear_error(app_modules, tmp_path):
+    path = tmp_path / "mesh.bookmarks.json"
+    path.write_text('{"bookmarks": [{"name": "x"}]}')
+    with pytest.raises(GeoscalerError, match="not a bookmarks file"):
+        app_modules["bookmarks"].Bookmarks(path, "mesh")
+
+
+def test_chart_outlines_of_the_demo_asset(app_modules, small_demo):
+    """The demo asset has 6 square charts of 8 x 8 quads: 6 x 4 x 8 boundary edges."""
+    outlines = app_modules["uv_inspect"].chart_outlines(small_demo)
+    assert outlines.shape == (6 * 4 * 8, 2, 2)
+    lengths = np.linalg.norm(outlines[:, 1] - outlines[:, 0], axis=1)
+    assert np.allclose(lengths, lengths[0], rtol=1e-4)  # chart edges are split evenly
+
+
+def test_warp_field_and_grid_follow_a_synthetic_warp(app_modules, small_demo):
+    """UVs moved by a known smooth field: the field is recovered where faces cover the
+    texture, and the grid points are moved by it."""
+    inspect = app_modules["uv_inspect"]
+    uv = small_demo.uvs.astype(np.float64)
+    shift = np.stack([0.01 * np.sin(2 * np.pi * uv[:, 1]), np.full(len(uv), -0.005)], axis=1)
+    displacement, covered = inspect.warp_field(small_demo, (uv + shift).astype(np.float32), 64)
+    assert covered.mean() > 0.3
+    rows, cols = np.nonzero(covered)
+    v = 1.0 - (rows + 0.5) / 64
+    expected = np.stack([0.01 * np.sin(2 * np.pi * v), np.full(len(v), -0.005)], axis=1)
+    assert np.abs(displacement[rows, cols] - expected).max() < 2e-3  # linear across faces
+
+    grid = inspect.warp_grid(displacement, covered, lines=16)
+    still = inspect.warp_grid(np.zeros_like(displacement), covered, lines=16)
+    assert grid.shape == still.shape and len(grid) > 100
+    assert np.allclose(grid[..., 1] - still[..., 1], -0.005, atol=1e-4)
+
+    picture = inspect.heatmap(np.linalg.norm(displacement, axis=-1), covered)
+    assert picture.shape == (64, 64, 4) and picture.dtype == np.uint8
+    assert (picture[~covered][:, :3] == 64).all()  # grey outside the charts
+
+
+def test_uv_pictures_draw_texture_outlines_and_warp(app_modules, small_demo):
+    ctx = gl_context()
+    gl_renderer = import_app_module("gl_renderer")
+    inspect = app_modules["uv_inspect"]
+    renderer = gl_renderer.GLRenderer(ctx, small_demo, image_size=64)
+    surface = renderer.reference_surface()
+    picture = inspect.UVPicture(ctx, size=128)
+
+    def pixels():
+        data = np.frombuffer(picture.fbo.read(components=3), np.uint8)
+        return data.reshape(128, 128, 3)[::-1].astype(int)
+
+    picture.draw(surface.textures[0], [])
+    plain = pixels()
+    level0 = small_demo.materials[0].base_color_texture[..., :3].astype(int)  # 128 x 128
+    assert np.abs(plain - level0).mean() < 2.0  # the texture as stored, right way up
+    picture.draw(surface.textures[0], [(inspect.chart_outlines(small_demo), (1, 0, 0, 1))])
+    outlined = pixels()
+    red = (outlined == [255, 0, 0]).all(axis=2)
+    assert 0.02 < red.mean() < 0.3
+    segments = np.array([[[0.0, 0.5], [1.0, 0.5]]], np.float32)  # a warp grid line at v = 0.5
+    picture.draw(None, [(segments, (0, 1, 1, 1))])
+    assert (pixels()[63:65] == [0, 255, 255]).all(axis=2).any(axis=0).mean() > 0.95
+    picture.release()
+    surface.release()
+
+
+def test_training_runs_off_thread_and_reports(small_demo):
+    training = import_app_module("training")
+    settings = training.TrainingSettings(
+        method="direct",
+        scale=4,
+        steps=12,
+        time_budget=60.0,
+        views=1,
+        image_size=64,
+        optimize={"pool_views": 2, "validate_every": 4},
+    )
+    run = training.Training(small_demo, settings)
+    run.start()
+    assert run.wait(timeout=120), "the worker did not finish"
+    state = run.read()
+    assert state.error is None, state.error
+    assert state.phase == "done" and state.step == 12
+    assert state.steps == list(range(1, 13)) and all(math.isfinite(x) for x in state.losses)
+    assert state.validation_steps == [4, 8, 12]
+    assert len(state.validation_ssim) == 3 and all(0 < x <= 1 for x in state.validation_ssim)
+    assert math.isfinite(state.bicubic_psnr) and math.isfinite(state.gain)
+    assert state.textures[0].shape == (32, 32, 3)
+    assert [level.shape[:2] for level in state.chains[0]][:3] == [(32, 32), (16, 16), (8, 8)]
+    assert {row["method"] for row in state.result.rows} == {"direct", "bicubic", "lanczos"}
+
+
+def test_training_pauses_resumes_and_stops(small_demo):
+    training = import_app_module("training")
+    settings = training.TrainingSettings(
+        steps=10_000, time_budget=120.0, views=1, image_size=64, optimize={"pool_views": 2}
+    )
+    run = training.Training(small_demo, settings)
+    run.start()
+    deadline = time.perf_counter() + 60
+    while run.read().step < 3 and time.perf_counter() < deadline:
+        time.sleep(0.05)
+    run.pause()
+    time.sleep(0.3)
+    paused_at = run.read().step
+    time.sleep(0.5)
+    assert run.read().step <= paused_at + 1 and run.read().phase == "paused"
+    run.resume()
+    run.stop()
+    assert run.wait(timeout=60)
+    state = run.read()
+    assert state.phase == "done" and state.step < 10_000
+    assert state.result.details["stopped_by"] == "stopped"
+
+
+def test_bad_settings_are_refused_before_the_worker_starts(small_demo):
+    training = import_app_module("training")
+    with pytest.raises(GeoscalerError, match="larger than the 128 x 128 texture"):
+        training.Training(small_demo, training.TrainingSettings(method="bicubic", scale=512))
+
+
+def test_a_failing_method_reports_its_error(small_demo, monkeypatch):
+    from geoscaler import methods
+
+    def broken(mesh, scale, options):
+        raise RuntimeError("out of texels")
+
+    monkeypatch.setitem(methods.METHODS, "broken", broken)
+    training = import_app_module("training")
+    settings = training.TrainingSettings(method="broken", views=1, image_size=64)
+    run = training.Training(small_demo, settings)
+    run.start()
+    assert run.wait(timeout=60)
+    assert run.read().phase == "failed"
+    assert run.read().error == "RuntimeError: out of texels"
+
+
+def test_the_uv_inspector_shows_the_warp_of_new_uvs(small_demo, tmp_path):
+    """A method that returns new UVs (here a synthetic shift of 2 texels of the 32-texel result):
+    the inspector adds the deformed grid and a warp heatmap that reads 2 texels."""
+    ctx = gl_context()
+    session_module = import_app_module("session")
+    panels = import_app_module("panels")
+    session = session_module.Session(ctx, small_demo, None, tmp_path, scale=4, image_size=64)
+
+    class App:  # what UVPanel reads of the app
+        pass
+
+    app = App()
+    app.session = session
+    panel = panels.UVPanel()
+    panel._update(app)
+    assert panel.warp_texture is None  # bicubic keeps the mesh's UVs
+    texture = session.candidate_textures[0]
+    warped = (small_demo.uvs + np.float32(2.0 / 32)).astype(np.float32)
+    session.set_candidate([texture], warped, "warped")
+    panel._update(app)
+    assert panel.warp_texture is not None
+    assert panel.warp_max_texels == pytest.approx(2.0 * math.sqrt(2.0), rel=1e-3)
+    session.release()
+
+
+def test_every_shader_is_shipped_with_the_package():
+    """setup.py installs shaders/*.vert and *.frag as geoscaler/shaders: nothing else is there."""
+    gl_renderer = import_app_module("gl_renderer")
+    names = sorted(p.name for p in gl_renderer.SHADER_DIR.iterdir())
+    assert names and all(name.endswith((".vert", ".frag")) for name in names), names

@@ -1,0 +1,99 @@
+"""The OpenGL renderer of the app draws what the torch renderer draws (PROTOCOL.md).
+
+Same mesh, same protocol camera, two implementations of one sampler: the GL image must match
+the torch image at PSNR-fg >= 40 dB, and cover exactly the same pixels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from app_support import gl_context, import_app_module
+from conftest import mesh_params
+
+from geoscaler.cameras import Camera, validation_cameras
+from geoscaler.mesh import load_mesh
+from geoscaler.methods import reference_textures
+from geoscaler.metrics import psnr_fg
+from geoscaler.procedural import demo_mesh
+from geoscaler.render import Renderer
+from geoscaler.texture import MipTexture, texture_to_linear
+
+AGREEMENT_DB = 40.0
+
+
+@pytest.fixture(scope="module")
+def ctx():
+    context = gl_context()
+    yield context
+    context.release()
+
+
+def both_renders(ctx, mesh, camera: Camera, textures=None, uvs=None):
+    """``(gl image, gl foreground, torch image, torch foreground)`` of one view (float images),
+    with ``textures`` (default: the protocol's reference maps) and ``uvs`` (default: the mesh's).
+    """
+    gl_renderer = import_app_module("gl_renderer")
+    textures = reference_textures(mesh) if textures is None else textures
+    gl = gl_renderer.GLRenderer(ctx, mesh)
+    surface = gl_renderer.Surface(gl, textures, uvs)
+    image, foreground = gl.render_image(camera, surface)
+    surface.release()
+
+    renderer = Renderer(mesh, "cpu")
+    mips = [None if t is None else MipTexture(texture_to_linear(t)) for t in textures]
+    gbuffer = renderer.rasterize(camera)
+    torch_uvs = None if uvs is None else torch.from_numpy(uvs)
+    reference = renderer.render(gbuffer, mips, torch_uvs)
+    return (
+        torch.from_numpy(image).float() / 255,
+        torch.from_numpy(foreground),
+        reference,
+        renderer.foreground(gbuffer),
+    )
+
+
+def agreement(ctx, mesh, camera, textures=None, uvs=None) -> float:
+    image, foreground, reference, torch_foreground = both_renders(ctx, mesh, camera, textures, uvs)
+    assert torch.equal(foreground, torch_foreground) or (
+        (foreground != torch_foreground).float().mean() < 1e-4
+    ), "GL and torch cover different pixels"
+    assert torch_foreground.any()
+    return float(psnr_fg(image[None], reference[None], torch_foreground[None]))
+
+
+@pytest.mark.parametrize("path", mesh_params())
+def test_gl_matches_torch_on_every_development_mesh(ctx, path):
+    mesh = load_mesh(path)
+    view = 7  # a side view: both textures and silhouettes in frame
+    assert agreement(ctx, mesh, validation_cameras()[view]) >= AGREEMENT_DB
+
+
+@pytest.mark.parametrize("distance", [1.5, 2.4, 4.0], ids=["near", "validation", "far"])
+def test_gl_matches_torch_on_the_demo_asset_near_and_far(ctx, distance):
+    """Near views magnify texels (bilinear on level 0), far ones minify (coarse mip levels)."""
+    mesh = demo_mesh(subdivisions=16, texture_size=512)
+    assert agreement(ctx, mesh, validation_cameras(distance)[3]) >= AGREEMENT_DB
+
+
+def test_gl_matches_torch_with_a_small_texture_and_moved_uvs(ctx):
+    """A candidate as the app shows it: another texture size, UVs of its own (repeat wrap)."""
+    mesh = demo_mesh(subdivisions=16, texture_size=512)
+    rng = np.random.default_rng(0)
+    texture = rng.integers(0, 256, size=(96, 80, 3), dtype=np.uint8)  # odd mip sizes
+    uvs = (mesh.uvs * 1.7 + 0.3).astype(np.float32)  # crosses tile borders
+    assert agreement(ctx, mesh, validation_cameras()[11], [texture], uvs) >= AGREEMENT_DB
+
+
+def test_a_flipped_texture_does_not_pass(ctx):
+    """The check has teeth: the texture upside down in GL is far below the threshold."""
+    gl_renderer = import_app_module("gl_renderer")
+    mesh = demo_mesh(subdivisions=16, texture_size=256)
+    camera = validation_cameras()[3]
+    _, _, reference, foreground = both_renders(ctx, mesh, camera)
+    gl = gl_renderer.GLRenderer(ctx, mesh)
+    flipped = np.ascontiguousarray(mesh.materials[0].base_color_texture[::-1])
+    image, _ = gl.render_image(camera, gl_renderer.Surface(gl, [flipped]))
+    image = torch.from_numpy(image).float()[None] / 255
+    assert float(psnr_fg(image, reference[None], foreground[None])) < 30.0
