@@ -11,7 +11,7 @@ import torch
 from geoscaler.baselines import lanczos
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods import MethodOptions, MethodResult, reference_textures, register
-from geoscaler.optimize import OptimizeConfig, optimize
+from geoscaler.optimize import OptimizeConfig, optimize_method
 from geoscaler.render import Renderer
 from geoscaler.texture import linear_to_texture, texture_to_linear
 
@@ -53,14 +53,7 @@ def direct(mesh: TexturedMesh, scale: int, options: MethodOptions) -> MethodResu
         seed=options.seed,
         **settings,
     )
-    result = optimize(
-        renderer,
-        model,
-        config,
-        on_event=options.on_event,
-        controller=options.extra.get("controller"),
-        validation=options.extra.get("validation_views"),
-    )
+    result = optimize_method(renderer, model, config, options)
     textures = [None if t is None else linear_to_texture(t) for t in result.textures]
     details = {
         "device": str(renderer.device),

@@ -654,9 +654,7 @@ def command(args: Any) -> None:
         if args.method != "geoscaler":
             raise GeoscalerError("--variant: only --method geoscaler has variants")
         if args.variant not in VARIANTS:
-            raise GeoscalerError(
-                f"--variant {args.variant!r}: choose one of {', '.join(VARIANTS)}"
-            )
+            raise GeoscalerError(f"--variant {args.variant!r}: choose one of {', '.join(VARIANTS)}")
         extra["variant"] = args.variant
     options = check_options(
         args.method, args.device, args.seed, args.steps, args.time_budget, extra

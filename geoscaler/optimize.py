@@ -459,6 +459,23 @@ def optimize(
     )
 
 
+def optimize_method(
+    renderer: Renderer, model: Model, config: OptimizeConfig, options, **settings
+) -> OptimizeResult:
+    """:func:`optimize` with what a method's :class:`~geoscaler.methods.MethodOptions` carry:
+    its progress callback, its controller and its cached validation views. ``settings``: the
+    other keyword arguments of :func:`optimize`."""
+    return optimize(
+        renderer,
+        model,
+        config,
+        on_event=options.on_event,
+        controller=options.extra.get("controller"),
+        validation=options.extra.get("validation_views"),
+        **settings,
+    )
+
+
 def _time_spent(start: float, config: OptimizeConfig) -> float:
     """Fraction of the time budget used so far (0 without a budget)."""
     if config.time_budget is None or config.time_budget <= 0:

@@ -50,7 +50,7 @@ from geoscaler.nn.network import (
     parameter_count,
 )
 from geoscaler.nn.perceptual import perceptual_loss
-from geoscaler.optimize import OptimizeConfig, PerceptualTerm, optimize
+from geoscaler.optimize import OptimizeConfig, PerceptualTerm, optimize_method
 from geoscaler.render import Renderer
 from geoscaler.texture import linear_to_texture, texture_to_linear
 
@@ -205,15 +205,8 @@ def geoscaler_network(mesh: TexturedMesh, scale: int, options: MethodOptions) ->
     settings = {**preset.optimize, **options.extra.get("optimize", {})}
     settings["steps"] = options.steps or settings.get("steps", 300)
     loop = OptimizeConfig(time_budget=options.time_budget, seed=options.seed, **settings)
-    result = optimize(
-        renderer,
-        model,
-        loop,
-        on_event=options.on_event,
-        controller=options.extra.get("controller"),
-        validation=options.extra.get("validation_views"),
-        keeps_uvs=not config.uv_warper,
-        perceptual=perceptual,
+    result = optimize_method(
+        renderer, model, loop, options, keeps_uvs=not config.uv_warper, perceptual=perceptual
     )
     textures = [None if t is None else linear_to_texture(t) for t in result.textures]
     details = {
