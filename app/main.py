@@ -205,7 +205,7 @@ class App:
             return
         settings = self.training.settings
         label = f"{settings.method} x{settings.scale}, step {state.step}"
-        uvs = None
+        uvs = state.uvs
         if state.result is not None:
             label = f"{settings.method} x{settings.scale} (best, as exported)"
             uvs = state.result.result.uvs

@@ -3,8 +3,9 @@
 The worker rasterises the validation views, scores bicubic on them (the gain's zero), then runs
 :func:`geoscaler.downsample.downsample` -- the CLI's job -- with a
 :class:`~geoscaler.optimize.Controller` for pause/resume/stop and a progress callback that
-records the loss and validation PSNR and, a few times a second, pulls the current texture with
-:meth:`ProgressEvent.snapshot`. The UI thread only reads :class:`TrainingState` under its lock.
+records the loss and validation PSNR and, a few times a second, pulls the current texture (and
+UVs) with ``ProgressEvent.candidate``. The UI thread only reads :class:`TrainingState` under
+its lock.
 
 On 2 cores the worker runs torch on one thread (``torch.set_num_threads(1)``, process-wide), so
 the UI thread and the GL driver keep the other core.
@@ -92,6 +93,7 @@ class TrainingState:
     bicubic_psnr: float = math.nan
     best_psnr: float = -math.inf
     textures: list[np.ndarray | None] | None = None
+    uvs: np.ndarray | None = None  # the live candidate's UVs (None: the mesh's own)
     chains: list[list[np.ndarray] | None] | None = None
     texture_version: int = 0
     result: Downsampled | None = None
@@ -223,12 +225,13 @@ class Training:
             self._set(phase="failed", error=f"{type(error).__name__}: {error}")
 
     @torch.no_grad()
-    def _ssim(self, textures: list[torch.Tensor | None]) -> float:
-        """Mean SSIM-fg of 8-bit-quantised ``textures`` over the first :data:`SSIM_VIEWS` of Q."""
+    def _ssim(self, textures: list[torch.Tensor | None], uvs: torch.Tensor | None) -> float:
+        """Mean SSIM-fg of 8-bit-quantised ``textures`` (on ``uvs``, None: the mesh's) over
+        the first :data:`SSIM_VIEWS` of Q."""
         q = self.q
         views = range(min(SSIM_VIEWS, len(q)))
         mips = [None if t is None else MipTexture(quantize_linear(t)) for t in textures]
-        images = q.render(mips, views=views)
+        images = q.render(mips, uvs, views=views)
         scores = evaluate(images, q.references[: len(views)], q.foreground[: len(views)])
         return float(scores["ssim_fg"].mean())
 
@@ -256,15 +259,21 @@ class Training:
                 state.validation_psnr.append(event.validation_psnr)
             elif event.phase == "done":
                 state.phase = "scoring on the validation views"
-        if event.phase == "validation" and event.snapshot is not None:
-            ssim = self._ssim(event.snapshot())
+        now = time.perf_counter()
+        live = now - self._last_snapshot > SNAPSHOT_INTERVAL
+        if event.candidate is None or not (live or event.phase == "validation"):
+            return
+        linear, uvs = event.candidate()
+        if event.phase == "validation":
+            ssim = self._ssim(linear, uvs)
             with self.lock:
                 self.state.validation_ssim.append(ssim)
-        now = time.perf_counter()
-        if event.snapshot is not None and now - self._last_snapshot > SNAPSHOT_INTERVAL:
+        if live:
             self._last_snapshot = now
-            textures = [None if t is None else linear_to_texture(t) for t in event.snapshot()]
+            textures = [None if t is None else linear_to_texture(t) for t in linear]
             chains = [None if t is None else srgb_mip_chain(t) for t in textures]
+            moved = None if uvs is None else uvs.cpu().numpy().astype(np.float32)
             with self.lock:
                 self.state.textures, self.state.chains = textures, chains
+                self.state.uvs = moved
                 self.state.texture_version += 1

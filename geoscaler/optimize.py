@@ -107,7 +107,8 @@ class ProgressEvent:
         validation_psnr: PSNR-fg on Q of this validation (``"validation"`` events).
         best_psnr: best validation PSNR-fg so far.
         done / total: progress within the caching phase.
-        snapshot: returns the current candidate textures (linear, detached) on request.
+        candidate: returns the current ``(textures, uvs)``, detached, on request: linear
+            textures and UVs (None when the model keeps the mesh's own).
     """
 
     phase: str
@@ -119,7 +120,9 @@ class ProgressEvent:
     best_psnr: float = -math.inf
     done: int = 0
     total: int = 0
-    snapshot: Callable[[], list[torch.Tensor | None]] | None = field(default=None, repr=False)
+    candidate: Callable[[], tuple[list[torch.Tensor | None], torch.Tensor | None]] | None = field(
+        default=None, repr=False
+    )
 
 
 class Controller:
@@ -377,10 +380,11 @@ def optimize(
     optimizer = torch.optim.AdamW(parameters, lr=config.lr, weight_decay=config.weight_decay)
     generator = torch.Generator().manual_seed(config.seed)
 
-    def snapshot() -> list[torch.Tensor | None]:
+    def candidate() -> tuple[list[torch.Tensor | None], torch.Tensor | None]:
         with torch.no_grad():
-            current, _ = model.candidate()
-            return [None if t is None else t.detach().clone() for t in current]
+            textures, uvs = model.candidate()
+            copies = [None if t is None else t.detach().clone() for t in textures]
+            return copies, None if uvs is None else uvs.detach().clone()
 
     best = _Best()
     best.offer(_validate(val, model), 0, model)  # the start is a candidate too
@@ -420,7 +424,7 @@ def optimize(
                 elapsed,
                 loss_value,
                 best_psnr=best.psnr,
-                snapshot=snapshot,
+                candidate=candidate,
             )
         )
         history.append({"step": step, "loss": loss_value, "elapsed": elapsed})
@@ -438,7 +442,7 @@ def optimize(
                     loss_value,
                     psnr,
                     best.psnr,
-                    snapshot=snapshot,
+                    candidate=candidate,
                 )
             )
             if not improved and config.patience is not None and best.stale >= config.patience:

@@ -225,3 +225,24 @@ def test_every_shader_is_shipped_with_the_package():
     gl_renderer = import_app_module("gl_renderer")
     names = sorted(p.name for p in gl_renderer.SHADER_DIR.iterdir())
     assert names and all(name.endswith((".vert", ".frag")) for name in names), names
+
+
+def test_the_live_candidate_carries_the_uvs_of_a_warping_method(small_demo):
+    training = import_app_module("training")
+    settings = training.TrainingSettings(
+        method="geoscaler-uvw",
+        scale=4,
+        steps=3,
+        time_budget=60.0,
+        views=1,
+        image_size=64,
+        optimize={"pool_views": 2, "validate_every": 3},
+    )
+    run = training.Training(small_demo, settings)
+    run.start()
+    assert run.wait(timeout=120), "the worker did not finish"
+    state = run.read()
+    assert state.error is None, state.error
+    assert state.uvs is not None and state.uvs.shape == small_demo.uvs.shape
+    assert state.result.result.uvs is not None
+    assert len(state.validation_ssim) == 1

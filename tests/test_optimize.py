@@ -100,8 +100,8 @@ def test_a_controller_stops_the_loop_from_outside(scene):
     assert result.steps == 4 and result.stopped_by == "stopped"
     phases = [e.phase for e in events]
     assert phases[0] == "caching" and phases[-1] == "done"
-    snapshot = [e for e in events if e.phase == "step"][-1].snapshot()
-    assert snapshot[0].shape == (32, 32, 3)
+    textures, uvs = [e for e in events if e.phase == "step"][-1].candidate()
+    assert textures[0].shape == (32, 32, 3) and uvs is None
 
 
 def test_pause_blocks_until_resumed():
