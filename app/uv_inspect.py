@@ -9,39 +9,33 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
+from geoscaler.figures import colormap
 from geoscaler.mesh import TexturedMesh
-from geoscaler.uvmaps import rasterize_uv
+from geoscaler.uvmaps import rasterize_uv, tiled_face_uvs, uv_corner_ids
 
 from .gl_renderer import program
 
 OUTLINE_COLOUR = (1.0, 0.85, 0.1, 1.0)
 GRID_COLOUR = (0.2, 0.9, 1.0, 1.0)
-
-
-def _tile_shift(mesh: TexturedMesh, faces: np.ndarray) -> np.ndarray:
-    """``(F, 1, 2)`` whole-tile shift that brings each face's UV centroid into [0, 1)^2."""
-    return -np.floor(mesh.uvs[faces].mean(axis=1, keepdims=True))
+OUTSIDE_GREY = 64  # heatmap texels no face covers
 
 
 def chart_outlines(mesh: TexturedMesh, material: int | None = None) -> np.ndarray:
     """``(E, 2, 2)`` float32 UV segments: the boundary edges of the UV charts.
 
-    An edge is on a chart boundary when no other face shares both of its UV corners; corners
-    are shared when they have the same 3D point and the same UV (as in
-    :func:`geoscaler.uvmaps.chart_labels`). Faces are shifted by whole tiles into [0, 1)^2.
+    An edge is on a chart boundary when no other face shares both of its UV corners
+    (:func:`geoscaler.uvmaps.uv_corner_ids`). Faces are shifted by whole tiles into [0, 1)^2.
     """
     faces = mesh.faces if material is None else mesh.faces[mesh.face_material == material]
     if len(faces) == 0:
         return np.zeros((0, 2, 2), np.float32)
-    keys = np.concatenate([mesh.vertex_to_point[:, None].astype(np.float64), mesh.uvs], axis=1)
-    _, corner = np.unique(keys, axis=0, return_inverse=True)
-    corner = corner.reshape(-1)[faces]  # (F, 3)
+    corner = uv_corner_ids(mesh)[faces]  # (F, 3)
     ends = np.stack([corner, np.roll(corner, -1, axis=1)], axis=2).reshape(-1, 2)  # (3F, 2)
     _, edge, count = np.unique(
         np.sort(ends, axis=1), axis=0, return_inverse=True, return_counts=True
     )
     boundary = count[edge.reshape(-1)] == 1
-    uv = mesh.uvs[faces] + _tile_shift(mesh, faces)  # (F, 3, 2)
+    uv = tiled_face_uvs(mesh, faces)  # (F, 3, 2)
     segments = np.stack([uv, np.roll(uv, -1, axis=1)], axis=2).reshape(-1, 2, 2)
     return segments[boundary].astype(np.float32)
 
@@ -97,14 +91,14 @@ def warp_grid(displacement: np.ndarray, covered: np.ndarray, lines: int = 24) ->
 
 
 def heatmap(values: np.ndarray, mask: np.ndarray, top: float | None = None) -> np.ndarray:
-    """``(H, W, 4)`` uint8 black-red-yellow-white ramp of ``values`` / ``top``, grey where
-    ``mask`` is False (``top``: the largest value by default)."""
+    """``(H, W, 4)`` uint8 opaque picture of ``values`` / ``top`` on the project's error ramp
+    (:func:`geoscaler.figures.colormap`), grey where ``mask`` is False (``top``: the largest
+    value by default)."""
     top = float(values[mask].max()) if top is None and mask.any() else (top or 1.0)
-    t = np.clip(values / max(top, 1e-12), 0.0, 1.0)[..., None]
-    rgb = np.clip(np.concatenate([3 * t, 3 * t - 1, 3 * t - 2], axis=-1), 0.0, 1.0)
-    rgb = np.where(mask[..., None], rgb, 0.25)
-    alpha = np.ones_like(t)
-    return (np.concatenate([rgb, alpha], axis=-1) * 255).round().astype(np.uint8)
+    rgb = colormap(values / max(top, 1e-12))
+    rgb[~mask] = OUTSIDE_GREY
+    alpha = np.full(rgb.shape[:-1] + (1,), 255, np.uint8)
+    return np.concatenate([rgb, alpha], axis=-1)
 
 
 class UVPicture:

@@ -45,6 +45,7 @@ from geoscaler.methods import (
     run_method,
 )
 from geoscaler.metrics import METRIC_NAMES, mean_metrics
+from geoscaler.nn.network import VARIANTS
 from geoscaler.render import Renderer
 
 GAIN_REFERENCE = "bicubic"
@@ -118,7 +119,7 @@ def parse_methods(text: str | None, variants: str | None = None) -> list[str]:
             if not known_method(label):
                 raise GeoscalerError(
                     f"--variant: unknown variant {label[len('geoscaler-') :]!r}; "
-                    "choose from base, gcm, uvw, full"
+                    f"choose from {', '.join(VARIANTS)}"
                 )
         names[at : at + 1] = labels
     if len(set(names)) != len(names):

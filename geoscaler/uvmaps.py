@@ -11,15 +11,25 @@ from geoscaler.mesh import TexturedMesh
 from geoscaler.raster import GBuffer, rasterize
 
 
-def chart_labels(mesh: TexturedMesh) -> np.ndarray:
-    """``(F,)`` int64 UV chart of every face: faces joined through shared UV-space corners.
-
-    Corners are shared when they have the same 3D point and the same UV, so meshes stored with
-    one vertex per face corner still form proper charts.
-    """
+def uv_corner_ids(mesh: TexturedMesh) -> np.ndarray:
+    """``(V,)`` int64 id of each vertex's UV-space corner: vertices with the same 3D point and
+    the same UV share one, so meshes stored with one vertex per face corner still join up."""
     keys = np.concatenate([mesh.vertex_to_point[:, None].astype(np.float64), mesh.uvs], axis=1)
     _, corner_id = np.unique(keys, axis=0, return_inverse=True)
-    corner_id = corner_id.reshape(-1)[mesh.faces]  # (F, 3)
+    return corner_id.reshape(-1)
+
+
+def tiled_face_uvs(mesh: TexturedMesh, faces: np.ndarray) -> np.ndarray:
+    """``(F, 3, 2)`` float64 UVs of ``faces``, each face shifted by whole tiles so its centroid
+    lies in ``[0, 1)^2`` (repeat addressing)."""
+    corner_uvs = mesh.uvs[faces].astype(np.float64)
+    return corner_uvs - np.floor(corner_uvs.mean(axis=1, keepdims=True))
+
+
+def chart_labels(mesh: TexturedMesh) -> np.ndarray:
+    """``(F,)`` int64 UV chart of every face: faces joined through shared UV-space corners
+    (:func:`uv_corner_ids`)."""
+    corner_id = uv_corner_ids(mesh)[mesh.faces]  # (F, 3)
     num_faces = len(mesh.faces)
     # Bipartite graph face <-> corner; components of it are the charts.
     rows = np.repeat(np.arange(num_faces), 3)
@@ -41,8 +51,7 @@ def rasterize_uv(mesh: TexturedMesh, resolution: int, material: int | None = Non
         material: only the faces of this material (all faces when None).
     """
     faces = mesh.faces if material is None else mesh.faces[mesh.face_material == material]
-    corner_uvs = mesh.uvs[faces].astype(np.float64)  # (F, 3, 2)
-    corner_uvs -= np.floor(corner_uvs.mean(axis=1, keepdims=True))
+    corner_uvs = tiled_face_uvs(mesh, faces)  # (F, 3, 2)
     clip = np.concatenate(
         [corner_uvs * 2 - 1, np.zeros_like(corner_uvs[..., :1]), np.ones_like(corner_uvs[..., :1])],
         axis=2,

@@ -134,11 +134,11 @@ class GeoScalerNet(nn.Module):
         uvs = None
         if self.warper is not None:
             offsets = [None if f is None else self.warper.offsets(f) for f in features]
-            factor = fold_free_factor(
-                geometry.uvs, self._warped_uvs(geometry, offsets), geometry.faces
-            )
+            moved = self._warped_uvs(geometry, offsets)
+            # The UV warp is linear in the offsets: scaling them scales the move.
+            factor = fold_free_factor(geometry.uvs, moved.detach(), geometry.faces)
             offsets = [None if o is None else o * factor for o in offsets]
-            uvs = self._warped_uvs(geometry, offsets)
+            uvs = geometry.uvs + factor * (moved - geometry.uvs)
             features = [
                 None if f is None else warp_plane(f[self.warper.warp_channels :], o)
                 for f, o in zip(features, offsets, strict=True)
