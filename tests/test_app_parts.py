@@ -124,22 +124,28 @@ def test_uv_pictures_draw_texture_outlines_and_warp(app_modules, small_demo):
     surface.release()
 
 
-def test_training_runs_off_thread_and_reports(small_demo):
+def finished_run(mesh, method: str, steps: int, validate_every: int):
+    """The state of a small run of ``method`` on ``mesh`` (4x, 64-pixel views), run to its end."""
     training = import_app_module("training")
     settings = training.TrainingSettings(
-        method="direct",
+        method=method,
         scale=4,
-        steps=12,
+        steps=steps,
         time_budget=60.0,
         views=1,
         image_size=64,
-        optimize={"pool_views": 2, "validate_every": 4},
+        optimize={"pool_views": 2, "validate_every": validate_every},
     )
-    run = training.Training(small_demo, settings)
+    run = training.Training(mesh, settings)
     run.start()
     assert run.wait(timeout=120), "the worker did not finish"
     state = run.read()
     assert state.error is None, state.error
+    return state
+
+
+def test_training_runs_off_thread_and_reports(small_demo):
+    state = finished_run(small_demo, "direct", steps=12, validate_every=4)
     assert state.phase == "done" and state.step == 12
     assert state.steps == list(range(1, 13)) and all(math.isfinite(x) for x in state.losses)
     assert state.validation_steps == [4, 8, 12]
@@ -228,21 +234,7 @@ def test_every_shader_is_shipped_with_the_package():
 
 
 def test_the_live_candidate_carries_the_uvs_of_a_warping_method(small_demo):
-    training = import_app_module("training")
-    settings = training.TrainingSettings(
-        method="geoscaler-uvw",
-        scale=4,
-        steps=3,
-        time_budget=60.0,
-        views=1,
-        image_size=64,
-        optimize={"pool_views": 2, "validate_every": 3},
-    )
-    run = training.Training(small_demo, settings)
-    run.start()
-    assert run.wait(timeout=120), "the worker did not finish"
-    state = run.read()
-    assert state.error is None, state.error
+    state = finished_run(small_demo, "geoscaler-uvw", steps=3, validate_every=3)
     assert state.uvs is not None and state.uvs.shape == small_demo.uvs.shape
     assert state.result.result.uvs is not None
     assert len(state.validation_ssim) == 1
