@@ -23,7 +23,12 @@ from typing import Protocol
 
 import torch
 
-from geoscaler.cameras import VALIDATION_VIEWS, sample_training_cameras, validation_cameras
+from geoscaler.cameras import (
+    VALIDATION_VIEWS,
+    Camera,
+    sample_training_cameras,
+    validation_cameras,
+)
 from geoscaler.evaluate import ViewSet
 from geoscaler.metrics import SSIMLoss, psnr_fg
 from geoscaler.raster import GBuffer
@@ -333,6 +338,7 @@ def optimize(
     validation: ViewSet | None = None,
     keeps_uvs: bool = True,
     perceptual: PerceptualTerm | None = None,
+    training_cameras: Sequence[Camera] | None = None,
 ) -> OptimizeResult:
     """Optimise ``model`` so that renders of its candidate match renders of the original.
 
@@ -345,6 +351,9 @@ def optimize(
         validation: cached validation views (default: built here for the protocol's set Q).
         keeps_uvs: the model never changes UVs, so texture taps can be cached.
         perceptual: an extra loss term (the network's VGG-19 term).
+        training_cameras: the views to train on (default: ``config.pool_views`` cameras drawn
+            from ``config.distances``). Methods never train on the validation cameras; the
+            texel-ceiling benchmark does, to bound what any texture could reach there.
 
     Returns:
         The best validated candidate (detached) and the run's history.
@@ -354,7 +363,9 @@ def optimize(
     emit = on_event or (lambda event: None)
     textures, _ = model.candidate()
     sizes = [None if t is None else tuple(t.shape[:2]) for t in textures]
-    train_cameras = sample_training_cameras(config.pool_views, config.seed, config.distances)
+    train_cameras = training_cameras or sample_training_cameras(
+        config.pool_views, config.seed, config.distances
+    )
     total = len(train_cameras) + (0 if validation is not None else VALIDATION_VIEWS)
 
     def caching(offset: int):
