@@ -46,10 +46,10 @@ def ceiling_row(path: Path, scale: int, distance: float, steps: int, lr: float, 
     renderer = Renderer(mesh, device)
     cameras = protocol_cameras(distance)
     views = ViewSet(renderer, cameras)
-    psnr = {
-        name: float(views.score(METHODS[name](mesh, scale, MethodOptions()).textures)["psnr_fg"].mean())
-        for name in ("bicubic", "lanczos")
-    }
+    psnr = {}
+    for name in ("bicubic", "lanczos"):
+        textures = METHODS[name](mesh, scale, MethodOptions()).textures
+        psnr[name] = float(views.score(textures)["psnr_fg"].mean())
     start = time.perf_counter()
     config = OptimizeConfig(steps=steps, lr=lr, ssim_weight=0.0, validate_every=steps)
     model = lanczos_texel_model(mesh, scale, renderer)

@@ -293,7 +293,13 @@ def compare_mesh(
         start = time.perf_counter()
         q = ViewSet(renderer, protocol_cameras(VALIDATION_DISTANCE, views))
         q_seconds = time.perf_counter() - start
-        options = replace(options, extra={**options.extra, "validation_views": q})
+        # Q's caching counts against each learned method's budget, as in `downsample`.
+        budget = options.time_budget
+        options = replace(
+            options,
+            time_budget=None if budget is None else max(budget - q_seconds, 0.0),
+            extra={**options.extra, "validation_views": q},
+        )
     outputs = run_methods(mesh, scales, to_run, options, step)
     for (name, _), result in outputs.items():
         if name not in BASELINES:  # each would have cached Q on its own

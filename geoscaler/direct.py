@@ -37,8 +37,7 @@ class TexelModel:
 
     def __init__(self, textures: list[torch.Tensor | None]):
         self.encoded = [
-            None if t is None else linear_to_srgb(t).detach().requires_grad_(True)
-            for t in textures
+            None if t is None else linear_to_srgb(t).detach().requires_grad_(True) for t in textures
         ]
 
     def parameters(self) -> list[torch.Tensor]:

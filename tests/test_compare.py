@@ -271,3 +271,24 @@ def test_learned_methods_validate_on_the_views_compare_scores_on(one_view, monke
     )
     assert [row["method"] for row in comparison.rows] == ["bicubic", "direct"]
     assert comparison.outputs["direct", 4].details["steps"] == 1
+
+
+def test_caching_the_shared_validation_views_counts_against_a_learned_methods_budget(
+    one_view, monkeypatch
+):
+    from geoscaler.methods import METHODS, MethodOptions
+
+    budgets = []
+
+    def learned(mesh, scale, options):
+        budgets.append(options.time_budget)
+        return METHODS["bicubic"](mesh, scale, options)
+
+    monkeypatch.setitem(METHODS, "learned", learned)
+    options = MethodOptions(device="cpu", time_budget=30.0)
+    comparison = compare_mesh(
+        demo_mesh(subdivisions=4, texture_size=64), [4], ["learned"], options=options
+    )
+    # the method's seconds include Q's caching, which is what its budget was reduced by
+    assert len(budgets) == 1
+    assert 0 < 30.0 - budgets[0] <= comparison.outputs["learned", 4].seconds

@@ -16,7 +16,7 @@ from geoscaler.metrics import mean_metrics
 from geoscaler.optimize import Controller, OptimizeConfig, ViewCache, fill_unseen, optimize
 from geoscaler.procedural import demo_mesh
 from geoscaler.render import Renderer
-from geoscaler.texture import linear_to_texture, texture_to_linear
+from geoscaler.texture import linear_to_srgb, linear_to_texture, texture_to_linear
 
 SCALE = 4
 
@@ -68,6 +68,36 @@ def test_the_best_state_is_never_worse_than_the_start(scene):
     result = run(scene, steps=5, lr=0.5)  # far too large: the steps only hurt
     assert result.best_step == 0
     assert result.best_psnr == pytest.approx(start["psnr_fg"], abs=0.05)
+
+
+def test_texel_model_parameters_are_the_srgb_values_that_ship():
+    start = torch.tensor([[[0.0, 0.002, 0.2], [0.5, 0.9, 1.0]]])
+    model = TexelModel([start, None])
+    (encoded,) = model.parameters()
+    assert torch.allclose(encoded, linear_to_srgb(start))
+    textures, uvs = model.candidate()
+    assert uvs is None and textures[1] is None
+    assert torch.allclose(textures[0], start, atol=1e-6)
+    textures[0].sum().backward()  # d linear / d sRGB is 1 / 12.92 at the dark end
+    assert encoded.grad[0, 0, 0] == pytest.approx(1 / 12.92)
+    with torch.no_grad():
+        encoded += 0.5
+    model.project()
+    assert encoded.max() == 1.0 and encoded.min() >= 0.5
+
+
+def test_the_loop_trains_on_the_cameras_it_is_given(scene):
+    mesh, renderer, validation = scene
+    cached = []
+    optimize(
+        renderer,
+        lanczos_model(mesh),
+        small_config(steps=1),
+        on_event=lambda event: cached.append(event.total) if event.phase == "caching" else None,
+        validation=validation,
+        training_cameras=validation.cameras[:3],
+    )
+    assert cached == [3, 3, 3]
 
 
 def test_runs_are_deterministic_with_a_seed(scene):
