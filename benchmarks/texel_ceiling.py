@@ -9,7 +9,7 @@ a target above the ceiling can only be reached by changing the UVs.
 
 Usage:
     python benchmarks/texel_ceiling.py [PATH ...] [--scale 4 8] [--distance 2.4]
-        [--steps 400] [--lr 0.01] [--json OUT.json]
+        [--steps 300] [--lr 0.01] [--json OUT.json]
 
 PATH: mesh files or folders, as `geoscaler bench` takes them (default: ../shared/data).
 Prints, per mesh and scale, PSNR-fg of bicubic and the gains over it of Lanczos and of the
@@ -73,7 +73,7 @@ def main() -> int:
     parser.add_argument("paths", nargs="*", default=[str(DATA)])
     parser.add_argument("--scale", type=int, nargs="+", default=[4, 8])
     parser.add_argument("--distance", type=float, default=2.4)
-    parser.add_argument("--steps", type=int, default=400)
+    parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--lr", type=float, default=0.01)
     parser.add_argument("--device", default="auto")
     parser.add_argument("--json", help="also write the rows here")

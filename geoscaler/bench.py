@@ -35,9 +35,9 @@ from geoscaler.compare import (
     describe_device,
     dumps,
     json_safe,
-    method_options,
     parse_methods,
     prepare_out_dir,
+    run_settings,
 )
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import SUPPORTED_SUFFIXES, load_mesh
@@ -437,10 +437,7 @@ def command(args: Any) -> None:
     """``geoscaler bench``: run, print the tables (or JSON), write the files under --out."""
     from geoscaler.files import save_png, write_atomically
 
-    scales = check_scales(args.scale)
-    methods = parse_methods(args.methods, args.variant)
-    distances = check_distances(args.distance)
-    options = method_options(args)
+    scales, methods, distances, options = run_settings(args)
     meshes = find_meshes(args.paths)
     names = [*OUTPUT_FILES, *(plot_name(d, distances) for d in distances)]
     if args.out:

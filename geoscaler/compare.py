@@ -471,6 +471,14 @@ def method_options(args: Any) -> MethodOptions:
     )
 
 
+def run_settings(args: Any) -> tuple[list[int], list[str], list[float], MethodOptions]:
+    """The checked scales, methods, distances and method options of ``compare``/``bench``
+    arguments: every argument error surfaces here, before any work."""
+    scales = check_scales(args.scale)
+    methods = parse_methods(args.methods, args.variant)
+    return scales, methods, check_distances(args.distance), method_options(args)
+
+
 def network_extra(args: Any) -> dict[str, Any]:
     """The network's settings from ``--preset`` and ``--vgg19`` (absent flags: none)."""
     extra = {}
@@ -510,10 +518,7 @@ def command(args: Any) -> None:
     from geoscaler.files import save_png, write_atomically
     from geoscaler.mesh import load_mesh
 
-    scales = check_scales(args.scale)
-    methods = parse_methods(args.methods, args.variant)
-    distances = check_distances(args.distance)
-    options = method_options(args)
+    scales, methods, distances, options = run_settings(args)
     mesh_path = Path(args.mesh)
     json_name = f"{mesh_path.stem}_compare.json"
     pictures = {scale: f"{mesh_path.stem}_compare_x{scale}.png" for scale in scales}

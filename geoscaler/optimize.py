@@ -398,16 +398,24 @@ def optimize(
             return copies, None if uvs is None else uvs.detach().clone()
 
     best = _Best()
+    validation_start = time.perf_counter()
     best.offer(_validate(val, model), 0, model)  # the start is a candidate too
+    # A run under a budget stops early enough for one more step and the final validation.
+    reserve = time.perf_counter() - validation_start
     validated_step = 0
     history: list[dict] = []
     step, loss_value, stopped_by = 0, math.nan, "steps"
+    step_seconds = 0.0
     while step < config.steps:
         controller.wait_while_paused()
         if controller.stopped:
             stopped_by = "stopped"
             break
-        if config.time_budget is not None and time.perf_counter() - start > config.time_budget:
+        step_start = time.perf_counter()
+        if (
+            config.time_budget is not None
+            and step_start + step_seconds + reserve - start > config.time_budget
+        ):
             stopped_by = "time budget"
             break
         views = torch.randperm(len(train), generator=generator)[: config.views_per_step]
@@ -425,6 +433,7 @@ def optimize(
         optimizer.step()
         model.project()
         step += 1
+        step_seconds = time.perf_counter() - step_start
         loss_value = loss.item()
         elapsed = time.perf_counter() - start
         emit(
