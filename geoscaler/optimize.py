@@ -406,6 +406,7 @@ def optimize(
     history: list[dict] = []
     step, loss_value, stopped_by = 0, math.nan, "steps"
     step_seconds = 0.0
+    loop_start = time.perf_counter()
     while step < config.steps:
         controller.wait_while_paused()
         if controller.stopped:
@@ -428,7 +429,7 @@ def optimize(
         loss.backward()
         for group in optimizer.param_groups:
             group["lr"] = config.lr * _learning_rate_factor(
-                step, _time_spent(start, config), config
+                step, _time_spent(time.perf_counter(), start, loop_start, config), config
             )
         optimizer.step()
         model.project()
@@ -500,11 +501,13 @@ def optimize_method(
     )
 
 
-def _time_spent(start: float, config: OptimizeConfig) -> float:
-    """Fraction of the time budget used so far (0 without a budget)."""
-    if config.time_budget is None or config.time_budget <= 0:
+def _time_spent(now: float, start: float, loop_start: float, config: OptimizeConfig) -> float:
+    """Fraction of the optimisation's share of the budget used at ``now``: the share runs
+    from the first step (``loop_start``) to the budget's end (0 without a budget)."""
+    if config.time_budget is None:
         return 0.0
-    return (time.perf_counter() - start) / config.time_budget
+    span = start + config.time_budget - loop_start
+    return 1.0 if span <= 0 else (now - loop_start) / span
 
 
 def _learning_rate_factor(step: int, time_spent: float, config: OptimizeConfig) -> float:

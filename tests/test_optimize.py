@@ -13,7 +13,15 @@ from geoscaler.evaluate import ViewSet
 from geoscaler.mesh import Material
 from geoscaler.methods import MethodOptions, reference_textures, run_method
 from geoscaler.metrics import mean_metrics
-from geoscaler.optimize import Controller, OptimizeConfig, ViewCache, fill_unseen, optimize
+from geoscaler.optimize import (
+    Controller,
+    OptimizeConfig,
+    ViewCache,
+    _learning_rate_factor,
+    _time_spent,
+    fill_unseen,
+    optimize,
+)
 from geoscaler.procedural import demo_mesh
 from geoscaler.render import Renderer
 from geoscaler.texture import linear_to_srgb, linear_to_texture, texture_to_linear
@@ -225,3 +233,20 @@ def test_a_time_budget_caps_the_training_pool(scene):
     cameras = validation_cameras()[:10]
     pool = ViewSet(renderer, cameras, deadline=0.0, min_views=3)  # deadline long past
     assert len(pool) == 3 and len(pool.gbuffers) == 3 and pool.references.shape[0] == 3
+
+
+def test_learning_rate_warms_up_then_decays_with_the_steps_or_the_time_whichever_is_further():
+    config = OptimizeConfig(steps=110, warmup_steps=10)
+    assert _learning_rate_factor(0, 0.0, config) == pytest.approx(0.1)
+    assert _learning_rate_factor(9, 0.0, config) == pytest.approx(1.0)
+    assert _learning_rate_factor(60, 0.0, config) == pytest.approx(0.5)  # half the steps
+    assert _learning_rate_factor(60, 1.0, config) == pytest.approx(0.0)  # the time is up
+    assert _learning_rate_factor(10, 0.5, config) == pytest.approx(0.5)  # half the time
+
+
+def test_the_schedule_spends_the_time_left_after_caching():
+    # a 60 s budget of which caching took 20 s: 10 s into the steps is a quarter of their time
+    config = OptimizeConfig(time_budget=60.0)
+    assert _time_spent(130.0, 100.0, 120.0, config) == pytest.approx(0.25)
+    assert _time_spent(161.0, 100.0, 170.0, config) == 1.0  # caching used the whole budget
+    assert _time_spent(130.0, 100.0, 120.0, OptimizeConfig()) == 0.0
