@@ -1,10 +1,12 @@
 """Method ``direct``: the texels of the small texture are the parameters.
 
-Initialised from Lanczos and optimised through the protocol renderer in linear light, kept in
-[0, 1]; the mesh's UVs stay as they are.
+Initialised from Lanczos, held as sRGB values in [0, 1] and optimised through the protocol
+renderer, which decodes them and filters in linear light; the mesh's UVs stay as they are.
 """
 
 from __future__ import annotations
+
+import time
 
 import torch
 
@@ -62,6 +64,7 @@ def lanczos_texel_model(mesh: TexturedMesh, scale: int, renderer: Renderer) -> T
 
 def direct(mesh: TexturedMesh, scale: int, options: MethodOptions) -> MethodResult:
     """Optimise the texels of Lanczos-initialised textures ``scale`` times smaller."""
+    started = time.perf_counter()  # the time budget covers the set-up too
     renderer = Renderer(mesh, options.device)
     model = lanczos_texel_model(mesh, scale, renderer)
     settings = {**DEFAULT_CONFIG, **options.extra.get("optimize", {})}
@@ -71,7 +74,7 @@ def direct(mesh: TexturedMesh, scale: int, options: MethodOptions) -> MethodResu
         seed=options.seed,
         **settings,
     )
-    result = optimize_method(renderer, model, config, options)
+    result = optimize_method(renderer, model, config, options, started_at=started)
     textures = [None if t is None else linear_to_texture(t) for t in result.textures]
     details = {
         "device": str(renderer.device),

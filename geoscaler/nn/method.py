@@ -18,6 +18,7 @@ Presets:
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -185,6 +186,7 @@ def geoscaler_network(mesh: TexturedMesh, scale: int, options: MethodOptions) ->
     ``options.extra``: ``"variant"`` (base, gcm, uvw, full), ``"preset"`` (cpu, paper),
     ``"vgg19"`` (path of VGG-19 weights for the perceptual term), ``"optimize"`` overrides.
     """
+    started = time.perf_counter()  # the time budget covers building the network too
     variant = options.extra.get("variant") or DEFAULT_VARIANT
     preset_name = options.extra.get("preset") or DEFAULT_PRESET
     if variant not in VARIANTS:
@@ -206,7 +208,13 @@ def geoscaler_network(mesh: TexturedMesh, scale: int, options: MethodOptions) ->
     settings["steps"] = options.steps or settings.get("steps", 300)
     loop = OptimizeConfig(time_budget=options.time_budget, seed=options.seed, **settings)
     result = optimize_method(
-        renderer, model, loop, options, keeps_uvs=not config.uv_warper, perceptual=perceptual
+        renderer,
+        model,
+        loop,
+        options,
+        keeps_uvs=not config.uv_warper,
+        perceptual=perceptual,
+        started_at=started,
     )
     textures = [None if t is None else linear_to_texture(t) for t in result.textures]
     details = {
