@@ -42,6 +42,7 @@ from geoscaler.methods import (
     known_method,
     known_methods,
     reference_textures,
+    remaining_budget,
     run_method,
 )
 from geoscaler.metrics import METRIC_NAMES, mean_metrics
@@ -293,11 +294,9 @@ def compare_mesh(
         start = time.perf_counter()
         q = ViewSet(renderer, protocol_cameras(VALIDATION_DISTANCE, views))
         q_seconds = time.perf_counter() - start
-        # Q's caching counts against each learned method's budget, as in `downsample`.
-        budget = options.time_budget
         options = replace(
             options,
-            time_budget=None if budget is None else max(budget - q_seconds, 0.0),
+            time_budget=remaining_budget(options.time_budget, q_seconds),  # Q counts too
             extra={**options.extra, "validation_views": q},
         )
     outputs = run_methods(mesh, scales, to_run, options, step)

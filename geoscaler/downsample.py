@@ -55,6 +55,7 @@ from geoscaler.methods import (
     known_method,
     known_methods,
     reference_textures,
+    remaining_budget,
     run_method,
 )
 from geoscaler.metrics import evaluate
@@ -442,8 +443,8 @@ def downsample(
 
     learned = is_learned(method)
     budget = options.time_budget
-    if learned and budget is not None:
-        budget = max(budget - q_seconds, 1e-3)  # the budget covers the caching of Q
+    if learned:
+        budget = remaining_budget(budget, q_seconds)  # the budget covers the caching of Q
     extra = {**options.extra, "validation_views": q, "controller": controller}
     if learned and OPTIMIZE_OVERRIDES:
         extra["optimize"] = {**OPTIMIZE_OVERRIDES, **extra.get("optimize", {})}

@@ -62,6 +62,12 @@ class MethodResult:
 Method = Callable[[TexturedMesh, int, MethodOptions], MethodResult]
 
 
+def remaining_budget(budget: float | None, spent: float) -> float | None:
+    """What is left of a time budget (None: no budget) after ``spent`` seconds of work done for
+    the method, such as caching the validation views it is handed; kept positive."""
+    return None if budget is None else max(budget - spent, 1e-3)
+
+
 def reference_textures(mesh: TexturedMesh) -> list[np.ndarray | None]:
     """The protocol's reference map of every material (None where untextured)."""
     return [
