@@ -13,7 +13,7 @@ Works in any moderngl context: the app's window, or a headless EGL context
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import moderngl
@@ -39,9 +39,18 @@ def shader_source(name: str) -> str:
     return path.read_text()
 
 
-def program(ctx: moderngl.Context, vertex: str, fragment: str) -> moderngl.Program:
-    """Compile and link two shader files."""
-    return ctx.program(vertex_shader=shader_source(vertex), fragment_shader=shader_source(fragment))
+def program(
+    ctx: moderngl.Context, vertex: str, fragment: str, defines: dict[str, int] | None = None
+) -> moderngl.Program:
+    """Compile and link two shader files, with ``#define NAME VALUE`` for each of ``defines``
+    (inserted after each file's ``#version`` line)."""
+    lines = "".join(f"#define {name} {value}\n" for name, value in (defines or {}).items())
+
+    def source(name: str) -> str:
+        version, rest = shader_source(name).split("\n", 1)
+        return f"{version}\n{lines}{rest}"
+
+    return ctx.program(vertex_shader=source(vertex), fragment_shader=source(fragment))
 
 
 def use_screen(ctx: moderngl.Context) -> None:
@@ -162,6 +171,32 @@ class Target:
             thing.release()
 
 
+class TargetPair:
+    """Two targets of one size that :meth:`GLRenderer.render_pair` draws in one pass (the first
+    target's depth buffer, both sample textures as colour attachments 0 and 1). Owns them;
+    unpacks as ``first, second = pair``."""
+
+    def __init__(self, ctx: moderngl.Context, size: int, supersample: int):
+        self.targets = (Target(ctx, size, supersample), Target(ctx, size, supersample))
+        first, second = self.targets
+        self.draw_fbo = ctx.framebuffer([first.samples, second.samples], first.depth)
+
+    def __iter__(self) -> Iterator[Target]:
+        return iter(self.targets)
+
+    def release(self) -> None:
+        self.draw_fbo.release()
+        for target in self.targets:
+            target.release()
+
+
+def set_array(prog: moderngl.Program, name: str, values: list) -> None:
+    """Set the uniform array ``name`` (a length-1 array is set from its one value); uniforms the
+    compiler removed as unused are skipped."""
+    if name in prog:
+        prog[name].value = values if len(values) > 1 else values[0]
+
+
 class Surface:
     """A textured look of the mesh: one texture per material and the UVs they use.
 
@@ -190,11 +225,7 @@ class Surface:
         self.levels = [0 if c is None else len(c) for c in chains]
         uvs = renderer.mesh.uvs if uvs is None else uvs
         self.uv_buffer = ctx.buffer(np.ascontiguousarray(uvs, dtype=np.float32).tobytes())
-        self.vao = ctx.vertex_array(
-            renderer.mesh_program,
-            [(renderer.positions, "3f", "position"), (self.uv_buffer, "2f", "uv")],
-            renderer.indices,
-        )
+        self.vao = renderer.mesh_vertex_array([self])
 
     def release(self) -> None:
         for texture in self.textures:
@@ -225,7 +256,9 @@ class GLRenderer:
         self.mesh = mesh
         self.image_size = image_size
         self.supersample = supersample
-        self.mesh_program = program(ctx, "mesh.vert", "mesh.frag")
+        self.mesh_programs = {
+            views: program(ctx, "mesh.vert", "mesh.frag", {"VIEWS": views}) for views in (1, 2)
+        }
         self.resolve_program = program(ctx, "fullscreen.vert", "resolve.frag")
         self.empty_vao = ctx.vertex_array(self.resolve_program, [])
         order = np.argsort(mesh.face_material, kind="stable")
@@ -256,6 +289,23 @@ class GLRenderer:
         """A target 8 times cheaper to fill: half the image size, no supersampling."""
         return Target(self.ctx, self.image_size // 2, 1)
 
+    def target_pair(self, preview: bool = False) -> TargetPair:
+        """Two targets (of :meth:`target`'s size, or :meth:`preview_target`'s) for
+        :meth:`render_pair`."""
+        if preview:
+            return TargetPair(self.ctx, self.image_size // 2, 1)
+        return TargetPair(self.ctx, self.image_size, self.supersample)
+
+    def mesh_vertex_array(self, surfaces: Sequence[Surface]) -> moderngl.VertexArray:
+        """The mesh with the UVs of one or two surfaces (attributes ``uv``, ``uv_b``)."""
+        names = ("uv", "uv_b")
+        return self.ctx.vertex_array(
+            self.mesh_programs[len(surfaces)],
+            [(self.positions, "3f", "position")]
+            + [(s.uv_buffer, "2f", name) for s, name in zip(surfaces, names, strict=False)],
+            self.indices,
+        )
+
     def render(
         self,
         camera: Camera,
@@ -268,33 +318,67 @@ class GLRenderer:
         Args:
             pan: image shift in normalised device units (the app's pan; 0 for protocol views).
         """
+        self._draw(camera, [surface], surface.vao, target.draw_fbo, pan)
+        self._resolve(target)
+        return target
+
+    def render_pair(
+        self,
+        camera: Camera,
+        surfaces: tuple[Surface, Surface],
+        targets: TargetPair,
+        pan: tuple[float, float] = (0.0, 0.0),
+    ) -> None:
+        """:meth:`render` of two surfaces from one camera in one pass over the triangles, the
+        same pixels as two calls at about half the vertex work (what bounds small views)."""
+        vao = self.mesh_vertex_array(surfaces)
+        try:
+            self._draw(camera, surfaces, vao, targets.draw_fbo, pan)
+        finally:
+            vao.release()
+        for target in targets.targets:
+            self._resolve(target)
+
+    def _draw(
+        self,
+        camera: Camera,
+        surfaces: Sequence[Surface],
+        vao: moderngl.VertexArray,
+        fbo: moderngl.Framebuffer,
+        pan: tuple[float, float],
+    ) -> None:
+        """Draw ``surfaces[i]`` into colour attachment ``i`` of ``fbo`` (supersampled)."""
         ctx = self.ctx
         clip = pan_matrix(pan) @ camera.clip_matrix()
-        target.draw_fbo.use()
-        target.draw_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        fbo.use()
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         ctx.depth_func = "<"
-        prog = self.mesh_program
+        prog = vao.program
         prog["clip_from_world"].write(clip.T.astype(np.float32).tobytes())
+        views = range(len(surfaces))
         for index, (first, count) in enumerate(self.ranges):
             if count == 0:
                 continue
-            texture = surface.textures[index]
-            prog["textured"] = texture is not None
+            textures = [surface.textures[index] for surface in surfaces]
+            for unit, texture in zip(views, textures, strict=True):
+                if texture is not None:
+                    texture.use(unit)
             prog["base_color_factor"] = self.factors[index]
-            if texture is not None:
-                texture.use(0)
-                prog["base_color"] = 0
-                prog["max_level"] = float(surface.levels[index] - 1)
-            surface.vao.render(moderngl.TRIANGLES, vertices=count, first=first)
+            set_array(prog, "textured", [texture is not None for texture in textures])
+            set_array(prog, "base_color", list(views))
+            set_array(prog, "max_level", [float(s.levels[index] - 1) for s in surfaces])
+            vao.render(moderngl.TRIANGLES, vertices=count, first=first)
         ctx.disable(moderngl.DEPTH_TEST)
+
+    def _resolve(self, target: Target) -> None:
+        """Box-average ``target``'s supersamples into its ``image`` and ``covered``."""
         target.resolve_fbo.use()
         target.samples.use(0)
         self.resolve_program["samples"] = 0
         self.resolve_program["factor"] = target.supersample
         self.empty_vao.render(moderngl.TRIANGLES, vertices=3)
-        return target
 
     def render_image(self, camera: Camera, surface: Surface) -> tuple[np.ndarray, np.ndarray]:
         """``(image (H, W, 3) uint8 sRGB, foreground (H, W) bool)`` of one view, row 0 on top."""

@@ -16,7 +16,7 @@ from geoscaler.mesh import TexturedMesh
 from geoscaler.methods import reference_textures
 
 from .bookmarks import Bookmarks
-from .gl_renderer import GLRenderer, Surface, Target
+from .gl_renderer import GLRenderer, Surface
 
 DEMO_NAME = "geoscaler_demo"
 
@@ -52,9 +52,8 @@ class Session:
         self.candidate_uvs: np.ndarray | None = None
         self.candidate: Surface | None = None
         self.candidate_label = ""
-        self.targets: tuple[Target, Target] = (self.renderer.target(), self.renderer.target())
-        previews = (self.renderer.preview_target(), self.renderer.preview_target())
-        self.previews: tuple[Target, Target] = previews
+        self.targets = self.renderer.target_pair()  # (original, candidate)
+        self.previews = self.renderer.target_pair(preview=True)
         self.bookmarks = Bookmarks(out_dir / f"{self.name}.bookmarks.json", self.name)
         self.set_bicubic(scale)
 
@@ -83,6 +82,6 @@ class Session:
         self.candidate_uvs, self.candidate_label = uvs, label
 
     def release(self) -> None:
-        for thing in (self.original, self.candidate, *self.targets, *self.previews):
+        for thing in (self.original, self.candidate, self.targets, self.previews):
             if thing is not None:
                 thing.release()

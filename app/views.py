@@ -4,7 +4,8 @@ toggled A/B, with one orbit camera for both.
 Views are re-rendered only when something they show changed (camera, texture, mode), so an
 idle window costs almost nothing and the optimiser keeps the CPU. While the camera moves, views
 are previews at half the size without supersampling (16 times fewer fragments); the frame after
-it stops, they are rendered again in full, at the protocol's 2 x 2 supersampling.
+it stops, they are rendered again in full, at the protocol's 2 x 2 supersampling. When both views
+need drawing they are drawn in one pass (:meth:`GLRenderer.render_pair`).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from typing import TYPE_CHECKING
 import moderngl
 from imgui_bundle import ImVec2, imgui
 
-from .gl_renderer import program, use_screen
+from .gl_renderer import TargetPair, program, use_screen
 from .orbit import Orbit
 from .session import Session
 
@@ -92,7 +93,7 @@ class ViewsPanel:
         """The camera was changed by a drag or the wheel: preview until it rests."""
         self.dirty = self.moving = True
 
-    def shown(self, session: Session):
+    def shown(self, session: Session) -> TargetPair:
         """The ``(original, downsampled)`` targets on screen."""
         return session.previews if self.previewing else session.targets
 
@@ -106,12 +107,14 @@ class ViewsPanel:
         self.previewing, self.moving = self.moving, False
         renderer = session.renderer
         camera, pan = self.orbit.camera(), self.orbit.pan
-        original, candidate = self.shown(session)
+        targets = self.shown(session)
+        original, candidate = targets
         key = (id(session), self.orbit.to_tuple(), self.previewing)
-        if key != self.original_drawn:  # a new texture alone leaves the original as it is
-            renderer.render(camera, session.original, original, pan)
+        if key != self.original_drawn:
+            renderer.render_pair(camera, (session.original, session.candidate), targets, pan)
             self.original_drawn = key
-        renderer.render(camera, session.candidate, candidate, pan)
+        else:  # a new texture alone leaves the original as it is
+            renderer.render(camera, session.candidate, candidate, pan)
         if self.mode in (WIPE, DIFFERENCE):
             if self.composer is None:
                 self.composer = Composer(renderer.ctx, renderer.image_size)

@@ -97,3 +97,29 @@ def test_a_flipped_texture_does_not_pass(ctx):
     image, _ = gl.render_image(camera, gl_renderer.Surface(gl, [flipped]))
     image = torch.from_numpy(image).float()[None] / 255
     assert float(psnr_fg(image, reference[None], foreground[None])) < 30.0
+
+
+def test_a_pair_drawn_in_one_pass_is_two_single_renders(ctx):
+    """``render_pair`` (the app's two views while the camera moves) draws the same pixels as
+    ``render`` twice, with two textures of different sizes and UVs of their own."""
+    gl_renderer = import_app_module("gl_renderer")
+    mesh = demo_mesh(subdivisions=16, texture_size=256)
+    gl = gl_renderer.GLRenderer(ctx, mesh, image_size=128)
+    rng = np.random.default_rng(1)
+    small = rng.integers(0, 256, size=(40, 56, 3), dtype=np.uint8)
+    surfaces = (gl.reference_surface(), gl_renderer.Surface(gl, [small], mesh.uvs * 1.3 + 0.1))
+    camera = validation_cameras()[5]
+    for preview in (False, True):
+        pair = gl.target_pair(preview)
+        gl.render_pair(camera, surfaces, pair, pan=(0.1, -0.05))
+        singles = []
+        for surface, paired in zip(surfaces, pair, strict=True):
+            single = gl.preview_target() if preview else gl.target()
+            singles.append(gl.render(camera, surface, single, pan=(0.1, -0.05)).read())
+            single.release()
+            image, foreground = paired.read()
+            assert np.array_equal(image, singles[-1][0])
+            assert np.array_equal(foreground, singles[-1][1]) and foreground.mean() > 0.2
+        assert not np.array_equal(singles[0][0], singles[1][0])  # two different pictures
+        assert pair.targets[0].size == (64 if preview else 128)
+        pair.release()
