@@ -41,6 +41,10 @@ LAYOUT = {  # window -> (x, y, width, height) at first use, for a 1280 x 800 win
 }
 MAX_FPS = 60.0
 """Frames a second at most: the rest of the time (and the GIL) goes to the optimiser."""
+IDLE_FPS = 10.0
+"""Frames a second without input events (hello_imgui's idling), training or not: enough for the
+plots and the live texture (pulled twice a second), and on 2 cores it leaves the optimiser 3.8
+steps a second instead of 1.7 at 30 fps (``benchmarks/bench_app.py``, mode ``idle``)."""
 
 
 class App:
@@ -273,8 +277,6 @@ class App:
         self._collect_load()
         self._collect_dialog()
         self._collect_training()
-        busy = self.training is not None and self.training.running
-        hello_imgui.get_runner_params().fps_idling.fps_idle = 30.0 if busy else 10.0
         self._menu()
         if self.session is None:
             imgui.text("loading..." if self.loading else (self.error or "no mesh open"))
@@ -338,6 +340,7 @@ class App:
             hello_imgui.DefaultImGuiWindowType.no_default_window
         )
         params.ini_disable = True
+        params.fps_idling.fps_idle = IDLE_FPS
         params.callbacks.show_gui = self.gui
         params.callbacks.post_init = self.post_init
         params.callbacks.before_exit = self.shutdown

@@ -6,10 +6,15 @@ optimisation steps run, counts frames for ``--seconds`` in two modes:
 
 - ``orbit``: the camera turns every frame, so both views (512 px, 2 x 2 supersampled) are
   re-rendered every frame: what a user dragging the mouse sees;
-- ``still``: the camera rests; only the live texture updates re-render the downsampled view.
+- ``still``: the camera rests; only the live texture updates re-render the downsampled view;
+- ``idle``: as ``still``, with hello_imgui's idling on as in the app (no input events: frames
+  come at its ``fps_idle``), i.e. a user watching the run without touching anything.
 
-The app's own pacing (at most 60 fps) stays on; hello_imgui's idling is off so that frames are
-not throttled for lack of input events. Run it under a display, e.g.::
+Besides frames a second it reports the optimiser's steps a second in each mode: the worker runs
+at the lowest CPU priority, so it is what the UI leaves it.
+
+The app's own pacing (at most 60 fps) stays on; in the first two modes hello_imgui's idling is
+off so that frames are not throttled for lack of input events. Run it under a display, e.g.::
 
     xvfb-run -a -s "-screen 0 1600x1000x24" .venv/bin/python benchmarks/bench_app.py
 """
@@ -28,6 +33,9 @@ DEFAULT_MESH = (
 )
 
 
+MODES = ("orbit", "still", "idle")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("mesh", nargs="?", help=f"mesh file (default {DEFAULT_MESH})")
@@ -44,24 +52,28 @@ def main() -> None:
     path = Path(args.mesh) if args.mesh else (DEFAULT_MESH if DEFAULT_MESH.is_file() else None)
     settings = TrainingSettings(method="direct", scale=4, time_budget=600.0, views=args.views)
     app = App(path, Path(os.environ.get("TMPDIR", "/tmp")), settings, demo=lambda: demo_mesh(40))
-    frames: dict[str, list[float]] = {"orbit": [], "still": []}
+    frames: dict[str, list[float]] = {mode: [] for mode in MODES}
+    steps: dict[str, list[int]] = {mode: [] for mode in MODES}  # the optimiser's, at each frame
     started = {"at": None}
 
     def gui() -> None:
         if app.session is not None and app.training is None:
             app.start_training()
         app.gui()
-        hello_imgui.get_runner_params().fps_idling.enable_idling = False
         state = app.state
         if state is None or state.step < 1:
+            hello_imgui.get_runner_params().fps_idling.enable_idling = False
             return  # still caching views: measure while steps run
         now = time.perf_counter()
         started["at"] = started["at"] or now
-        mode = "orbit" if now - started["at"] < args.seconds else "still"
-        if now - started["at"] > 2 * args.seconds:
+        index = int((now - started["at"]) // args.seconds)
+        if index >= len(MODES):
             hello_imgui.get_runner_params().app_shall_exit = True
             return
+        mode = MODES[index]
+        hello_imgui.get_runner_params().fps_idling.enable_idling = mode == "idle"
         frames[mode].append(now)
+        steps[mode].append(state.step)
         if mode == "orbit":
             app.views.orbit.rotate(3.0, 0.0)  # as a mouse drag does
             app.views.moved()
@@ -81,7 +93,9 @@ def main() -> None:
     }
     for mode, times in frames.items():
         if len(times) > 1:
-            result[f"fps_{mode}"] = round((len(times) - 1) / (times[-1] - times[0]), 1)
+            seconds = times[-1] - times[0]
+            result[f"fps_{mode}"] = round((len(times) - 1) / seconds, 1)
+            result[f"steps_per_s_{mode}"] = round((steps[mode][-1] - steps[mode][0]) / seconds, 2)
     print(json.dumps(result, indent=2))
     if not frames["orbit"]:
         sys.exit("no optimisation step ran: nothing was measured")

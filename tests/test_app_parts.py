@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import sys
 import time
 
 import numpy as np
@@ -169,6 +171,8 @@ def test_training_pauses_resumes_and_stops(small_demo):
     run.pause()
     time.sleep(0.3)
     paused_at = run.read().step
+    if sys.platform == "linux":  # the worker yields the CPU to the UI, GL driver and X server
+        assert os.getpriority(os.PRIO_PROCESS, run.thread.native_id) == training.WORKER_NICE
     time.sleep(0.5)
     assert run.read().step <= paused_at + 1 and run.read().phase == "paused"
     run.resume()
