@@ -142,19 +142,18 @@ class Renderer:
         Returns:
             ``(image_size, image_size, C)`` image.
         """
-        channels = colours.shape[0]
-        samples = gbuffer.pixels.long()
-        grid = torch.stack(
-            [row.new_zeros(self.resolution**2).index_copy(0, samples, row) for row in colours]
+        pixel = self.pixel_of_sample(gbuffer)
+        share = 1.0 / self.supersample**2
+        image = torch.stack(
+            [row.new_zeros(self.image_size**2).index_add(0, pixel, row) for row in colours]
         )
-        grid = grid.view(1, channels, self.resolution, self.resolution)
-        pixels = torch.nn.functional.avg_pool2d(grid, self.supersample)[0]
-        return pixels.permute(1, 2, 0)
+        side = self.image_size
+        return (image * share).view(-1, side, side).permute(1, 2, 0)
 
     def pixel_of_sample(self, gbuffer: GBuffer) -> torch.Tensor:
-        """``(N,)`` int64 flat index of the output pixel each covered sample belongs to."""
-        samples = gbuffer.pixels.long()
-        row = samples // self.resolution // self.supersample
+        """``(N,)`` int32 flat index of the output pixel each covered sample belongs to."""
+        samples = gbuffer.pixels.int()
+        row = samples // (self.resolution * self.supersample)
         col = samples % self.resolution // self.supersample
         return row * self.image_size + col
 

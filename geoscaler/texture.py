@@ -117,9 +117,12 @@ class MipLayout:
         self.size = (height, width)
         self.num_levels = len(sizes)
         self.num_texels = int(counts.sum())
-        self.heights = sizes[:, 0].to(device)
-        self.widths = sizes[:, 1].to(device)
-        self.offsets = (torch.cumsum(counts, 0) - counts).to(device)
+        if self.num_texels >= 2**31:
+            raise ValueError(f"a {height} x {width} mip chain has too many texels to index")
+        # Per-level tables, int32 like the taps: half the memory traffic of int64.
+        self.heights = sizes[:, 0].to(device, torch.int32)
+        self.widths = sizes[:, 1].to(device, torch.int32)
+        self.offsets = (torch.cumsum(counts, 0) - counts).to(device, torch.int32)
 
     def bilinear_taps(
         self, u: torch.Tensor, v: torch.Tensor, level: torch.Tensor
@@ -128,22 +131,24 @@ class MipLayout:
 
         Args:
             u, v: ``(N,)`` float texture coordinates (texel centres at (i + 0.5) / size).
-            level: ``(N,)`` int64 mip level per sample, in ``[0, num_levels)``.
+            level: ``(N,)`` int32 or int64 mip level per sample, in ``[0, num_levels)``.
 
         Returns:
-            ``(index, weight)``, each ``(4, N)``: texels (x0, y0), (x1, y0), (x0, y1), (x1, y1).
+            ``(index, weight)``, each ``(4, N)``: int32 texels (x0, y0), (x1, y0), (x0, y1),
+            (x1, y1) and float weights.
         """
-        height = self.heights[level]
-        width = self.widths[level]
+        height = self.heights.index_select(0, level)
+        width = self.widths.index_select(0, level)
         x = u * width - 0.5
         y = (1.0 - v) * height - 0.5
         x0, y0 = torch.floor(x), torch.floor(y)
         fx, fy = x - x0, y - y0
-        x0, y0 = x0.long(), y0.long()
-        col0, col1 = torch.remainder(x0, width), torch.remainder(x0 + 1, width)
-        base = self.offsets[level]
-        row0 = base + torch.remainder(y0, height) * width
-        row1 = base + torch.remainder(y0 + 1, height) * width
+        # Repeat addressing on whole-number floats: remainder is fmod there, exact, and
+        # vectorised, unlike an integer division.
+        col0, col1 = torch.remainder(x0, width).int(), torch.remainder(x0 + 1, width).int()
+        base = self.offsets.index_select(0, level)
+        row0 = base + torch.remainder(y0, height).int() * width
+        row1 = base + torch.remainder(y0 + 1, height).int() * width
         index = torch.stack([row0 + col0, row0 + col1, row1 + col0, row1 + col1])
         gx, gy = 1 - fx, 1 - fy
         weight = torch.stack([gx * gy, fx * gy, gx * fy, fx * fy])
@@ -170,12 +175,12 @@ class MipLayout:
         return 0.5 * torch.log2(sigma_max_sq)
 
     def levels(self, lod: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """``(fine, coarse, blend)``, each ``(N,)``: the two mip levels around ``lod``
+        """``(fine, coarse, blend)``, each ``(N,)``: the two int32 mip levels around ``lod``
         (clamped to ``[0, num_levels - 1]``) and the weight of the coarser one."""
         lod = lod.clamp(0.0, float(self.num_levels - 1))
-        fine = torch.floor(lod).long()
+        fine = torch.floor(lod)
         coarse = (fine + 1).clamp_max(self.num_levels - 1)
-        return fine, coarse, lod - fine.to(lod.dtype)
+        return fine.int(), coarse.int(), lod - fine
 
     def trilinear_taps(
         self, u: torch.Tensor, v: torch.Tensor, lod: torch.Tensor

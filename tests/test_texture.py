@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from geoscaler.texture import (
+    MipLayout,
     MipTexture,
     UVFootprint,
     build_mip_chain,
@@ -78,6 +79,23 @@ def test_bilinear_hand_computed_values_and_repeat_addressing():
     assert values[1].item() == pytest.approx(0.25)  # a quarter texel right of texel 0
     assert values[2].item() == 0.0  # u = 1.25 repeats u = 0.25: texel 0
     assert values[3].item() == 0.5  # u = 0 straddles the seam: texels 0 and 1 (wrapped)
+
+
+def test_taps_repeat_whole_tiles_away_on_every_level():
+    """Repeat addressing: UVs whole tiles away, negative ones included, read the same int32
+    texels with the same weights, on an odd-sized texture's levels 0 and 1."""
+    layout = MipLayout(5, 7)
+    generator = torch.Generator().manual_seed(0)
+    u, v = torch.rand(2, 50, generator=generator)
+    level = torch.tensor([0, 1] * 25)
+    index, weight = layout.bilinear_taps(u, v, level)
+    assert index.dtype == torch.int32
+    assert index.min() >= 0 and index.max() < layout.num_texels
+    assert ((index[:, level == 1] >= 35) & (index[:, level == 1] < 35 + 6)).all()  # 2 x 3
+    for shift in (-3.0, 1.0, 7.0):
+        moved_index, moved_weight = layout.bilinear_taps(u + shift, v - shift, level)
+        assert torch.equal(moved_index, index)
+        torch.testing.assert_close(moved_weight, weight, atol=1e-5, rtol=0)
 
 
 def test_trilinear_blends_neighbouring_levels():
