@@ -69,7 +69,7 @@ class GBuffer:
 
     def sample_ndc(self) -> tuple[torch.Tensor, torch.Tensor]:
         """``(N,)`` float32 normalised device coordinates ``(s_x, s_y)`` of the covered samples."""
-        pixels = self.pixels.long()
+        pixels = self.pixels.int()
         return _ndc(pixels % self.resolution, pixels // self.resolution, self.resolution)
 
     def interpolate(
