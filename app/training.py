@@ -62,16 +62,15 @@ SSIM_VIEWS = 6
 itself validates on PSNR-fg only); a subset keeps it to about a second."""
 
 
-def lower_thread_priority(nice: int) -> bool:
-    """Give the calling thread the CPU priority ``nice`` (Linux: per thread); False where the
-    system cannot (other systems, or a priority already lower)."""
+def lower_thread_priority(nice: int) -> None:
+    """Give the calling thread the CPU priority ``nice`` on Linux, where priorities are per
+    thread; elsewhere, or where the system refuses, the thread keeps its priority."""
     if sys.platform != "linux":
-        return False
+        return
     try:
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), nice)
     except OSError:
-        return False
-    return True
+        pass
 
 
 @dataclass

@@ -54,4 +54,4 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Run the app's window tests first, whatever order the files were given in: once a
     headless EGL context has been current in the process, Mesa refuses the window's GLX context
     (``X_GLXMakeCurrent``: BadAccess) and Xlib's default handler exits the interpreter."""
-    items.sort(key=lambda item: item.module is None or item.module.__name__ != "test_app_gui")
+    items.sort(key=lambda item: item.path.name != "test_app_gui.py")
