@@ -172,13 +172,13 @@ class Target:
 
 
 class TargetPair:
-    """Two targets of one size that :meth:`GLRenderer.render_pair` draws in one pass (the first
-    target's depth buffer, both sample textures as colour attachments 0 and 1). Owns them;
-    unpacks as ``first, second = pair``."""
+    """Two targets of one size (made by :meth:`GLRenderer.target_pair`) drawn in one pass by
+    :meth:`GLRenderer.render_pair`: the first target's depth buffer, both sample textures as
+    colour attachments 0 and 1. Owns them; unpacks as ``first, second = pair``."""
 
-    def __init__(self, ctx: moderngl.Context, size: int, supersample: int):
-        self.targets = (Target(ctx, size, supersample), Target(ctx, size, supersample))
-        first, second = self.targets
+    def __init__(self, ctx: moderngl.Context, targets: tuple[Target, Target]):
+        self.targets = targets
+        first, second = targets
         self.draw_fbo = ctx.framebuffer([first.samples, second.samples], first.depth)
 
     def __iter__(self) -> Iterator[Target]:
@@ -292,9 +292,8 @@ class GLRenderer:
     def target_pair(self, preview: bool = False) -> TargetPair:
         """Two targets (of :meth:`target`'s size, or :meth:`preview_target`'s) for
         :meth:`render_pair`."""
-        if preview:
-            return TargetPair(self.ctx, self.image_size // 2, 1)
-        return TargetPair(self.ctx, self.image_size, self.supersample)
+        make = self.preview_target if preview else self.target
+        return TargetPair(self.ctx, (make(), make()))
 
     def mesh_vertex_array(self, surfaces: Sequence[Surface]) -> moderngl.VertexArray:
         """The mesh with the UVs of one or two surfaces (attributes ``uv``, ``uv_b``)."""
