@@ -143,16 +143,14 @@ class MipLayout:
         y = (1.0 - v) * height - 0.5
         x0, y0 = torch.floor(x), torch.floor(y)
         fx, fy = x - x0, y - y0
-        # Repeat addressing on whole-number floats: remainder is fmod there, exact, and
-        # vectorised, unlike an integer division.
-        col0, col1 = torch.remainder(x0, width).int(), torch.remainder(x0 + 1, width).int()
-        base = self.offsets.index_select(0, level)
-        row0 = base + torch.remainder(y0, height).int() * width
-        row1 = base + torch.remainder(y0 + 1, height).int() * width
-        index = torch.stack([row0 + col0, row0 + col1, row1 + col0, row1 + col1])
-        gx, gy = 1 - fx, 1 - fy
-        weight = torch.stack([gx * gy, fx * gy, gx * fy, fx * fy])
-        return index, weight
+        # The two columns and two rows read, (2, N) each. Repeat addressing on whole-number
+        # floats: remainder is fmod there, exact, and vectorised, unlike an integer division.
+        cols = torch.remainder(torch.stack([x0, x0 + 1]), width).int()
+        rows = torch.remainder(torch.stack([y0, y0 + 1]), height).int() * width
+        rows += self.offsets.index_select(0, level)
+        index = (rows[:, None] + cols[None]).view(4, -1)
+        weight = torch.stack([1 - fy, fy])[:, None] * torch.stack([1 - fx, fx])[None]
+        return index, weight.view(4, -1)
 
     def level_of_detail(
         self, du_dx: torch.Tensor, dv_dx: torch.Tensor, du_dy: torch.Tensor, dv_dy: torch.Tensor
@@ -219,10 +217,17 @@ def gather(texels: torch.Tensor, index: torch.Tensor, weight: torch.Tensor) -> t
     Returns:
         ``(C, N)``: ``sum_k weight[k] * texels[:, index[k]]``.
     """
-    values = take(texels, index.reshape(-1)).view(texels.shape[0], *index.shape)
-    result = values[:, 0] * weight[0]
-    for k in range(1, len(index)):  # one fused multiply-add per tap, no (C, K, N) product
-        result = torch.addcmul(result, values[:, k], weight[k])
+    flat = index.reshape(-1)
+    return torch.stack([_weighted_sum(row.index_select(0, flat), weight) for row in texels])
+
+
+def _weighted_sum(values: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """``(N,)`` ``sum_k weight[k] * values[k N : (k + 1) N]`` of ``(K N,)`` values, ``(K, N)``
+    weights: one fused multiply-add per tap, no ``(K, N)`` product."""
+    values = values.view(weight.shape)
+    result = values[0] * weight[0]
+    for k in range(1, len(weight)):
+        result = torch.addcmul(result, values[k], weight[k])
     return result
 
 
@@ -272,10 +277,17 @@ class MipTexture:
         """``(C, N)`` trilinear samples at level of detail ``lod`` (clamped to the chain).
 
         The same sum as gathering :meth:`MipLayout.trilinear_taps`, evaluated as a blend of
-        two bilinear lookups, which avoids concatenating the taps.
+        two bilinear lookups. Where texels are magnified (``lod < 0``) the coarser level has
+        weight 0 and is not looked up: on a typical view that is most samples.
         """
         fine, coarse, blend = self.layout.levels(lod)
-        return torch.lerp(self.bilinear(u, v, fine), self.bilinear(u, v, coarse), blend)
+        colour = self.bilinear(u, v, fine)
+        blended = torch.nonzero(lod >= 0).squeeze(1)
+        if len(blended) == 0:
+            return colour
+        u, v, coarse, blend = (t.index_select(0, blended) for t in (u, v, coarse, blend))
+        mixed = torch.lerp(colour.index_select(1, blended), self.bilinear(u, v, coarse), blend)
+        return colour.index_copy(1, blended, mixed)
 
     def sample(self, footprint: UVFootprint) -> torch.Tensor:
         """GPU-style texture lookup of every sample of a footprint: ``(C, N)``."""

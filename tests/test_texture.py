@@ -111,6 +111,18 @@ def test_trilinear_blends_neighbouring_levels():
     assert values[2].item() == 7.5  # clamped to the 1 x 1 level
 
 
+def test_trilinear_is_the_sum_of_its_taps_magnified_or_not():
+    torch.manual_seed(1)
+    texture = MipTexture(torch.rand(8, 16, 3, dtype=torch.float64))
+    u, v = torch.rand(7, dtype=torch.float64), torch.rand(7, dtype=torch.float64)
+    lod = torch.tensor([-2.0, -1e-9, 0.0, 0.25, 1.5, 3.0, 9.0], dtype=torch.float64)
+    taps = texture.layout.trilinear_taps(u, v, lod)
+    expected = (texture.texels[:, taps[0]] * taps[1]).sum(1)
+    torch.testing.assert_close(texture.trilinear(u, v, lod), expected, atol=1e-12, rtol=0)
+    level0 = texture.bilinear(u[:2], v[:2], torch.zeros(2, dtype=torch.int32))
+    assert torch.equal(texture.trilinear(u, v, lod)[:, :2], level0)  # magnified: level 0 alone
+
+
 @pytest.mark.parametrize(
     ("jacobian", "expected"),
     [
@@ -141,12 +153,12 @@ def test_sampling_is_differentiable_in_texels_and_uvs():
     torch.manual_seed(0)
     texels = torch.rand(4, 6, 3, dtype=torch.float64, requires_grad=True)
     # Positions and footprints away from texel-centre and level boundaries, where the
-    # filter is smooth; each sample blends two levels.
-    u = torch.tensor([0.13, 0.41, 0.77], dtype=torch.float64, requires_grad=True)
-    v = torch.tensor([0.21, 0.58, 0.93], dtype=torch.float64, requires_grad=True)
-    du_dx = torch.tensor([0.21, 0.3, 0.45], dtype=torch.float64, requires_grad=True)
-    dv_dy = torch.tensor([0.3, 0.2, 0.05], dtype=torch.float64, requires_grad=True)
-    zero = torch.zeros(3, dtype=torch.float64)
+    # filter is smooth; the first three samples blend two levels, the last is magnified.
+    u = torch.tensor([0.13, 0.41, 0.77, 0.62], dtype=torch.float64, requires_grad=True)
+    v = torch.tensor([0.21, 0.58, 0.93, 0.36], dtype=torch.float64, requires_grad=True)
+    du_dx = torch.tensor([0.21, 0.3, 0.45, 0.05], dtype=torch.float64, requires_grad=True)
+    dv_dy = torch.tensor([0.3, 0.2, 0.05, 0.04], dtype=torch.float64, requires_grad=True)
+    zero = torch.zeros(4, dtype=torch.float64)
 
     def sample(texels, u, v, du_dx, dv_dy):
         return MipTexture(texels).sample(UVFootprint(u, v, du_dx, zero, zero, dv_dy))
