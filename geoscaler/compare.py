@@ -46,7 +46,7 @@ from geoscaler.methods import (
     run_method,
 )
 from geoscaler.metrics import METRIC_NAMES, mean_metrics
-from geoscaler.nn.network import VARIANTS
+from geoscaler.nn.network import check_variant
 from geoscaler.render import Renderer
 
 GAIN_REFERENCE = "bicubic"
@@ -115,14 +115,8 @@ def parse_methods(text: str | None, variants: str | None = None) -> list[str]:
         if "geoscaler" not in names:
             raise GeoscalerError("--variant: list geoscaler in --methods to run its variants")
         at = names.index("geoscaler")
-        labels = [f"geoscaler-{v.strip()}" for v in variants.split(",") if v.strip()]
-        for label in labels:
-            if not known_method(label):
-                raise GeoscalerError(
-                    f"--variant: unknown variant {label[len('geoscaler-') :]!r}; "
-                    f"choose from {', '.join(VARIANTS)}"
-                )
-        names[at : at + 1] = labels
+        chosen = [check_variant(v.strip()) for v in variants.split(",") if v.strip()]
+        names[at : at + 1] = [f"geoscaler-{v}" for v in chosen]
     if len(set(names)) != len(names):
         raise GeoscalerError(f"--methods {text!r}: a method is listed twice")
     return names

@@ -650,13 +650,11 @@ def command(args: Any) -> None:
     """``geoscaler downsample``: check, run, write, report."""
     extra = network_extra(args)
     if args.variant is not None:
-        from geoscaler.nn.network import VARIANTS
+        from geoscaler.nn.network import check_variant
 
         if args.method != "geoscaler":
             raise GeoscalerError("--variant: only --method geoscaler has variants")
-        if args.variant not in VARIANTS:
-            raise GeoscalerError(f"--variant {args.variant!r}: choose one of {', '.join(VARIANTS)}")
-        extra["variant"] = args.variant
+        extra["variant"] = check_variant(args.variant)
     options = check_options(
         args.method, args.device, args.seed, args.steps, args.time_budget, extra
     )

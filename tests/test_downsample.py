@@ -178,7 +178,7 @@ def no_work(monkeypatch):
         (["--time-budget", "0"], "--time-budget 0"),
         (["--report", "OUT"], "is the output mesh"),
         (["--report", "MESH"], "refusing to overwrite the input file"),
-        (["--method", "geoscaler", "--variant", "tiny"], "--variant 'tiny': choose one of"),
+        (["--method", "geoscaler", "--variant", "tiny"], "unknown variant 'tiny'; choose one of"),
         (["--variant", "base"], "only --method geoscaler has variants"),
         (["--method", "geoscaler", "--vgg19", "MISSING.pth"], "--vgg19 MISSING.pth: no such"),
     ],

@@ -48,6 +48,7 @@ from geoscaler.nn.network import (
     GeoScalerNet,
     MeshGeometry,
     NetworkConfig,
+    check_variant,
     parameter_count,
 )
 from geoscaler.nn.perceptual import perceptual_loss
@@ -187,10 +188,8 @@ def geoscaler_network(mesh: TexturedMesh, scale: int, options: MethodOptions) ->
     ``"vgg19"`` (path of VGG-19 weights for the perceptual term), ``"optimize"`` overrides.
     """
     started = time.perf_counter()  # the time budget covers building the network too
-    variant = options.extra.get("variant") or DEFAULT_VARIANT
+    variant = check_variant(options.extra.get("variant") or DEFAULT_VARIANT)
     preset_name = options.extra.get("preset") or DEFAULT_PRESET
-    if variant not in VARIANTS:
-        raise GeoscalerError(f"variant {variant!r}: choose one of {', '.join(VARIANTS)}")
     if preset_name not in PRESETS:
         raise GeoscalerError(f"preset {preset_name!r}: choose one of {', '.join(PRESETS)}")
     preset = PRESETS[preset_name]
