@@ -98,7 +98,7 @@ class Renderer:
             uvs: ``(V, 2)`` UVs to use instead of the mesh's own (e.g. warped ones).
         """
         uvs = self.uvs if uvs is None else uvs
-        corner_uvs = uvs[self.faces].permute(2, 0, 1)  # (2, F, 3)
+        corner_uvs = uvs.index_select(0, self.faces.view(-1)).view(-1, 3, 2).permute(2, 0, 1)
         (u, v), (du_dx, dv_dx), (du_dy, dv_dy) = gbuffer.interpolate(corner_uvs)
         return UVFootprint(u, v, du_dx, dv_dx, du_dy, dv_dy)
 
@@ -129,7 +129,7 @@ class Renderer:
         for index, texture in enumerate(textures):
             hit = torch.nonzero(material == index).squeeze(1)
             if texture is not None and len(hit):
-                texel = texture.sample(UVFootprint(*(t[hit] for t in footprint)))
+                texel = texture.sample(UVFootprint(*(t.index_select(0, hit) for t in footprint)))
                 colours = colours.index_copy(1, hit, colours[:, hit] * texel)
         return colours
 

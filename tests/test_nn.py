@@ -36,6 +36,7 @@ from geoscaler.nn.uvwarper import (
 )
 from geoscaler.procedural import demo_mesh
 from geoscaler.render import Renderer
+from geoscaler.texture import MipTexture
 
 CPU = torch.device("cpu")
 
@@ -173,6 +174,35 @@ def test_gradients_reach_every_parameter(small_mesh, variant, residual):
     loss.backward()
     for name, parameter in model.network.named_parameters():
         assert parameter.grad is not None and parameter.grad.abs().sum() > 0, name
+
+
+def autograd_nodes(tensor: torch.Tensor) -> set[str]:
+    """Names of the backward nodes of the graph that produced ``tensor``."""
+    names, seen, stack = set(), set(), [tensor.grad_fn]
+    while stack:
+        node = stack.pop()
+        if node is None or node in seen:
+            continue
+        seen.add(node)
+        names.add(type(node).__name__)
+        stack.extend(parent for parent, _ in node.next_functions)
+    return names
+
+
+def test_a_training_render_gathers_without_advanced_indexing(small_mesh):
+    """The backward of ``x[index]`` (an accumulating ``index_put``) adds in an order that
+    depends on thread timing on the CPU: the same seed trained different networks. Every
+    differentiable gather is an ``index_select``, whose backward adds in a fixed order."""
+    torch.manual_seed(0)
+    model = build_network(small_mesh, 4, NetworkConfig("full", 8, 8, 4, stem="pool"), CPU)
+    randomise_zero_layers(model.network)
+    textures, uvs = model.candidate()
+    renderer = small_renderer(small_mesh, CPU)
+    gbuffer = renderer.rasterize(validation_cameras()[0])
+    image = renderer.render(gbuffer, [MipTexture(t) for t in textures], uvs)
+    nodes = autograd_nodes(image.sum())
+    assert "IndexSelectBackward0" in nodes
+    assert not {name for name in nodes if name.startswith(("IndexBackward", "IndexPut"))}
 
 
 # ----------------------------------------------------------------------------- warp

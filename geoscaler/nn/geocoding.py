@@ -14,6 +14,7 @@ import torch
 from torch import nn
 
 from geoscaler.nn.geometry import MeshGraph, UVRaster
+from geoscaler.texture import take
 
 
 class GraphConv(nn.Module):
@@ -63,9 +64,10 @@ def bilinear(plane: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> torch.Ten
     x0, y0 = x0.long(), y0.long()
     x1 = (x0 + 1).clamp(max=width - 1)
     y1 = (y0 + 1).clamp(max=height - 1)
-    flat = plane.reshape(channels, -1)
-    top = flat[:, y0 * width + x0] * (1 - fx) + flat[:, y0 * width + x1] * fx
-    bottom = flat[:, y1 * width + x0] * (1 - fx) + flat[:, y1 * width + x1] * fx
+    index = torch.stack([y0 * width + x0, y0 * width + x1, y1 * width + x0, y1 * width + x1])
+    values = take(plane.reshape(channels, -1), index.view(-1)).view(channels, 4, -1)
+    top = values[:, 0] * (1 - fx) + values[:, 1] * fx
+    bottom = values[:, 2] * (1 - fx) + values[:, 3] * fx
     return top * (1 - fy) + bottom * fy
 
 

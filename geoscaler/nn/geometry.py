@@ -51,7 +51,8 @@ class UVRaster:
         Returns:
             ``(C, size, size)``, zero at texels no face covers.
         """
-        values = (corner_values[self.corners] * self.weights[..., None]).sum(1)  # (N, C)
+        corners = corner_values.index_select(0, self.corners.view(-1))
+        values = (corners.view(*self.corners.shape, -1) * self.weights[..., None]).sum(1)  # (N, C)
         plane = corner_values.new_zeros(self.size * self.size, corner_values.shape[1])
         plane = plane.index_copy(0, self.texels, values)
         return plane.T.reshape(-1, self.size, self.size)
