@@ -25,7 +25,8 @@ class MethodOptions:
 
     Attributes:
         device: ``"auto"``, ``"cpu"`` or ``"cuda"``.
-        seed: random seed; the same seed gives the same result on the same device.
+        seed: random seed; on the CPU the same seed gives the same result (on CUDA, atomic
+            additions may change the last bits).
         steps: optimisation steps (None: the method's default).
         time_budget: wall-clock seconds the method may spend (None: no limit).
         on_event: receives progress events from long-running methods.

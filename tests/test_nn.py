@@ -452,6 +452,20 @@ def test_torchvisions_cache_is_used_when_it_holds_the_weights(monkeypatch, tmp_p
 # ----------------------------------------------------------------------------- the method
 
 
+def test_the_same_seed_trains_the_same_network(small_mesh, small_images):
+    def train(seed: int):
+        options = MethodOptions(device="cpu", seed=seed, steps=3)
+        options.extra["validation_views"] = ViewSet(
+            Renderer(small_mesh, "cpu", image_size=64), validation_cameras()[:2]
+        )
+        result = run_method("geoscaler-full", small_mesh, 4, options)
+        return result.textures[0], result.uvs
+
+    first, again, other = train(0), train(0), train(1)
+    assert np.array_equal(first[0], again[0]) and np.array_equal(first[1], again[1])
+    assert not np.array_equal(first[1], other[1])
+
+
 @pytest.mark.parametrize("name", ["geoscaler-base", "geoscaler-uvw"])
 def test_the_method_returns_8bit_textures_and_valid_uvs(small_mesh, small_images, name):
     options = MethodOptions(device="cpu", steps=2, extra={"optimize": {"pool_views": 2}})
