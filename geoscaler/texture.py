@@ -222,8 +222,8 @@ def gather(texels: torch.Tensor, index: torch.Tensor, weight: torch.Tensor) -> t
 
 
 def _weighted_sum(values: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
-    """``(N,)`` ``sum_k weight[k] * values[k N : (k + 1) N]`` of ``(K N,)`` values, ``(K, N)``
-    weights: one fused multiply-add per tap, no ``(K, N)`` product."""
+    """``(N,)`` ``sum_k weight[k] * values[k]``, where ``values`` are the ``(K N,)`` texels
+    gathered for ``(K, N)`` taps: one fused multiply-add per tap, no ``(K, N)`` product."""
     values = values.view(weight.shape)
     result = values[0] * weight[0]
     for k in range(1, len(weight)):
