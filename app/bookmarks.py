@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from geoscaler.errors import GeoscalerError
-from geoscaler.files import write_atomically
+from geoscaler.io import write_atomically
 
 from .orbit import Orbit
 

@@ -13,30 +13,48 @@ Works in any moderngl context: the app's window, or a headless EGL context
 
 from __future__ import annotations
 
+import importlib.resources
 from collections.abc import Iterator, Sequence
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import moderngl
 import numpy as np
 import torch
 
-from geoscaler.baselines import reference_texture
 from geoscaler.cameras import Camera
 from geoscaler.errors import GeoscalerError
+from geoscaler.filters import reference_textures
 from geoscaler.mesh import TexturedMesh
-from geoscaler.texture import build_mip_chain, linear_to_srgb, texture_to_linear
+from geoscaler.protocol import IMAGE_SIZE, SUPERSAMPLE
+from geoscaler.texture import build_mip_chain, linear_to_srgb, texture_to_linear, to_rgb
+
+if TYPE_CHECKING:
+    from importlib.resources.abc import Traversable
 
 GL_SRGB8_ALPHA8 = 0x8C43
-SHADER_DIR = Path(__file__).resolve().parent.parent / "shaders"
-"""``shaders/`` of the source tree (``app/..``), or ``geoscaler/shaders`` once installed."""
+SHADER_PACKAGE = "geoscaler.shaders"
+"""The package whose data are the GLSL files (``shaders/`` of the source tree, see setup.py)."""
+
+
+def shader_files() -> Traversable:
+    """The shader files as package data (:func:`importlib.resources.files`), wherever and
+    however ``geoscaler.shaders`` is installed (editable, wheel, zip)."""
+    try:
+        return importlib.resources.files(SHADER_PACKAGE)
+    except ModuleNotFoundError as exc:
+        raise GeoscalerError(
+            f"package {SHADER_PACKAGE} not found; reinstall geoscaler[app]"
+        ) from exc
 
 
 def shader_source(name: str) -> str:
-    """The text of ``shaders/<name>``."""
-    path = SHADER_DIR / name
-    if not path.is_file():
-        raise GeoscalerError(f"shader {name} not found in {SHADER_DIR}; reinstall geoscaler[app]")
-    return path.read_text()
+    """The text of the shader file ``name`` (``shaders/<name>`` in the source tree)."""
+    resource = shader_files().joinpath(name)
+    if not resource.is_file():
+        raise GeoscalerError(
+            f"shader {name} not found in {SHADER_PACKAGE}; reinstall geoscaler[app]"
+        )
+    return resource.read_text(encoding="utf-8")
 
 
 def program(
@@ -76,9 +94,7 @@ def headless_context() -> moderngl.Context:
 
 def to_rgba(texture: np.ndarray) -> np.ndarray:
     """``(H, W, C)`` uint8 texture, C in 1..4, to ``(H, W, 4)`` (grey broadcast, alpha 255)."""
-    if texture.ndim == 2:
-        texture = texture[..., None]
-    rgb = texture[..., :3] if texture.shape[2] >= 3 else np.repeat(texture[..., :1], 3, axis=2)
+    rgb = to_rgb(texture)
     alpha = np.full(texture.shape[:2] + (1,), 255, dtype=np.uint8)
     return np.ascontiguousarray(np.concatenate([rgb, alpha], axis=2))
 
@@ -241,16 +257,16 @@ class GLRenderer:
     Args:
         ctx: an OpenGL >= 4.5 moderngl context (``dFdxFine``).
         mesh: the mesh; its geometry is fixed for the renderer's lifetime.
-        image_size: output image side in pixels (the protocol's is 512).
-        supersample: samples per pixel side (the protocol's is 2).
+        image_size: output image side in pixels (default: the protocol's).
+        supersample: samples per pixel side (default: the protocol's).
     """
 
     def __init__(
         self,
         ctx: moderngl.Context,
         mesh: TexturedMesh,
-        image_size: int = 512,
-        supersample: int = 2,
+        image_size: int = IMAGE_SIZE,
+        supersample: int = SUPERSAMPLE,
     ):
         self.ctx = ctx
         self.mesh = mesh
@@ -273,13 +289,7 @@ class GLRenderer:
 
     def reference_surface(self) -> Surface:
         """The mesh's own textures as the protocol's reference maps (larger than 2048 reduced)."""
-        return Surface(
-            self,
-            [
-                None if m.base_color_texture is None else reference_texture(m.base_color_texture)
-                for m in self.mesh.materials
-            ],
-        )
+        return Surface(self, reference_textures(self.mesh))
 
     def target(self) -> Target:
         """A new render target of this renderer's size and supersampling."""

@@ -1,7 +1,9 @@
 """``geoscaler view``: the desktop app (glfw window, imgui-bundle UI, moderngl views).
 
-:class:`App` holds the state every window reads: the open :class:`Session`, the running
-:class:`Training`, errors and messages. Its ``gui`` runs once a frame on the UI thread: it
+:class:`App` holds what every window reads: the open :class:`Session`, the running
+:class:`Training` and its latest :class:`TrainingState`, and the UI-editable
+:class:`~geoscaler.app.state.AppState` (settings, export name, errors, messages), which the panels
+read and write. Its ``gui`` runs once a frame on the UI thread: it
 collects finished work (a mesh loaded, live textures from the optimiser), then draws the
 windows. Slow work never runs here: meshes load and methods run on worker threads.
 """
@@ -18,14 +20,23 @@ import moderngl
 import numpy as np
 from imgui_bundle import ImVec2, hello_imgui, imgui, immapp
 
-from geoscaler.downsample import Job, check_output_name, check_scale_fits, export, report_document
 from geoscaler.errors import GeoscalerError
-from geoscaler.files import check_output, prepare_folder, save_png, write_atomically
-from geoscaler.mesh import SUPPORTED_SUFFIXES, TexturedMesh, load_mesh
+from geoscaler.io import (
+    SUPPORTED_SUFFIXES,
+    check_output,
+    load_mesh,
+    prepare_folder,
+    save_png,
+    write_atomically,
+)
+from geoscaler.job import Job, check_output_name, checked_output_sizes, export
+from geoscaler.mesh import TexturedMesh
 from geoscaler.procedural import demo_mesh
+from geoscaler.report import dumps, report_document
 
 from .panels import BookmarksPanel, ExportPanel, OptimisePanel, PlotsPanel, UVPanel
 from .session import DEMO_NAME, Session
+from .state import AppState
 from .training import Training, TrainingSettings, TrainingState
 from .views import ViewsPanel
 
@@ -66,18 +77,13 @@ class App:
     ):
         self.first_path = mesh_path
         self.out_dir = Path(out_dir)
-        self.settings = settings or TrainingSettings()
+        self.state = AppState(settings=settings or TrainingSettings())  # what the panels edit
         self.demo = demo
         self.ctx: moderngl.Context | None = None
         self.session: Session | None = None
         self.training: Training | None = None
-        self.state: TrainingState | None = None
+        self.progress: TrainingState | None = None  # the optimisation's latest snapshot
         self.shown_version = 0
-        self.error: str | None = None
-        self.messages: list[str] = []
-        self.export_name = ""
-        self.overwrite = False
-        self.open_path = ""
         self.frames = 0
         self.last_frame = 0.0
         self.loader = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="geoscaler-load")
@@ -107,12 +113,12 @@ class App:
             window = glfw_utils.glfw_window_hello_imgui()
             glfw.set_drop_callback(window, lambda _window, paths: self.open(Path(paths[0])))
         except Exception as error:  # no glfw backend: the file dialog still works
-            self.messages.append(f"drag and drop unavailable: {error}")
+            self.state.messages.append(f"drag and drop unavailable: {error}")
 
     def open(self, path: Path | None) -> None:
         """Load ``path`` (None: the demo asset) on a worker thread; shown once loaded."""
         if path is not None and path.suffix.lower() not in SUPPORTED_SUFFIXES:
-            self.error = f"cannot open {path}: not a mesh ({', '.join(SUPPORTED_SUFFIXES)})"
+            self.state.error = f"cannot open {path}: not a mesh ({', '.join(SUPPORTED_SUFFIXES)})"
             return
         task = self.demo if path is None else (lambda: load_mesh(path))
         self.loading = (path, self.loader.submit(task))
@@ -130,22 +136,23 @@ class App:
         try:
             self._show(future.result(), path)
         except Exception as error:  # a bad file must not end the app
-            self.error = f"cannot open {path or DEMO_NAME}: {error}"
+            self.state.error = f"cannot open {path or DEMO_NAME}: {error}"
 
     def _show(self, mesh: TexturedMesh, path: Path | None) -> None:
-        check_scale_fits(mesh, self.settings.scale)
+        checked_output_sizes(mesh, self.state.settings.scale)
         assert self.ctx is not None
-        session = Session(self.ctx, mesh, path, self.out_dir, self.settings.scale)
+        session = Session(self.ctx, mesh, path, self.out_dir, self.state.settings.scale)
         if self.training is not None:
             self.training.stop()
-        self.training, self.state, self.shown_version = None, None, 0
+        self.training, self.progress, self.shown_version = None, None, 0
         if self.session is not None:
             self.session.release()
         self.session = session
         self.views.dirty = True
         self.uv.reset()
-        self.export_name = str(self.out_dir / f"{session.name}_x{self.settings.scale}.glb")
-        self.messages.append(f"opened {session.display_path}: {len(mesh.faces):,} faces")
+        scale = self.state.settings.scale
+        self.state.export_name = str(self.out_dir / f"{session.name}_x{scale}.glb")
+        self.state.messages.append(f"opened {session.display_path}: {len(mesh.faces):,} faces")
 
     def open_dialog(self) -> None:
         try:
@@ -155,7 +162,7 @@ class App:
                 "Open a mesh", str(self.out_dir), ["Meshes", "*.obj *.gltf *.glb", "All", "*"]
             )
         except Exception as error:
-            self.error = f"no file dialog here ({error}); type a path in File > Open path"
+            self.state.error = f"no file dialog here ({error}); type a path in File > Open path"
 
     def _collect_dialog(self) -> None:
         if self.dialog is not None and self.dialog.ready():
@@ -171,50 +178,51 @@ class App:
         try:
             action()
         except (GeoscalerError, OSError) as error:
-            self.error = str(error)
+            self.state.error = str(error)
         except Exception as error:
-            self.error = f"{type(error).__name__}: {error}"
+            self.state.error = f"{type(error).__name__}: {error}"
 
     def set_scale(self, scale: int) -> None:
         assert self.session is not None
         try:
-            check_scale_fits(self.session.mesh, scale)
+            checked_output_sizes(self.session.mesh, scale)
         except GeoscalerError as error:
-            self.error = str(error)
+            self.state.error = str(error)
             return
-        self.settings.scale = scale
-        if self.state is None:
+        self.state.settings.scale = scale
+        if self.progress is None:
             self.session.set_bicubic(scale)
             self.views.dirty = True
-        self.export_name = str(self.out_dir / f"{self.session.name}_x{scale}.glb")
+        self.state.export_name = str(self.out_dir / f"{self.session.name}_x{scale}.glb")
 
     def start_training(self) -> None:
         assert self.session is not None
-        settings = dataclasses.replace(self.settings, optimize=dict(self.settings.optimize))
+        chosen = self.state.settings
+        settings = dataclasses.replace(chosen, optimize=dict(chosen.optimize))
         try:
             self.training = Training(self.session.mesh, settings)
         except GeoscalerError as error:
-            self.error = str(error)
+            self.state.error = str(error)
             return
-        self.state, self.shown_version = None, 0
+        self.progress, self.shown_version = None, 0
         self.training.start()
 
     def _collect_training(self) -> None:
         if self.training is None or self.session is None:
             return
-        state = self.state = self.training.read()
-        if state.error and self.error is None:
-            self.error = f"the optimisation failed: {state.error}"
-        if state.textures is None or state.texture_version == self.shown_version:
+        progress = self.progress = self.training.read()
+        if progress.error and self.state.error is None:
+            self.state.error = f"the optimisation failed: {progress.error}"
+        if progress.textures is None or progress.texture_version == self.shown_version:
             return
         settings = self.training.settings
-        label = f"{settings.method} x{settings.scale}, step {state.step}"
-        uvs = state.uvs
-        if state.result is not None:
+        label = f"{settings.method} x{settings.scale}, step {progress.step}"
+        uvs = progress.uvs
+        if progress.result is not None:
             label = f"{settings.method} x{settings.scale} (best, as exported)"
-            uvs = state.result.result.uvs
-        self.session.set_candidate(state.textures, uvs, label, state.chains)
-        self.shown_version = state.texture_version
+            uvs = progress.result.result.uvs
+        self.session.set_candidate(progress.textures, uvs, label, progress.chains)
+        self.shown_version = progress.texture_version
         self.views.dirty = True
 
     def bookmark_view(self) -> None:
@@ -226,16 +234,17 @@ class App:
     def export(self) -> list[Path]:
         """Write the mesh with the new textures (the CLI's exporter) and its JSON report."""
         assert self.session is not None and self.training is not None
-        done = self.state.result if self.state is not None else None
+        done = self.progress.result if self.progress is not None else None
         if done is None:
             raise GeoscalerError("nothing to export yet: run a method first")
         session, training = self.session, self.training
-        output = Path(self.export_name)
+        overwrite = self.state.overwrite
+        output = Path(self.state.export_name)
         prepare_folder(output.parent)
         mesh_path = session.mesh_path or Path(DEMO_NAME)
-        output = check_output_name(output, mesh_path, self.overwrite)
+        output = check_output_name(output, mesh_path, overwrite)
         report = output.with_suffix(".json")
-        check_output(report, force=self.overwrite, inputs=[mesh_path, *session.mesh.source_files])
+        check_output(report, force=overwrite, inputs=[mesh_path, *session.mesh.source_files])
         settings = training.settings
         job = Job(
             mesh_path,
@@ -244,15 +253,15 @@ class App:
             settings.scale,
             settings.method,
             training.options,
-            self.overwrite,
+            overwrite,
             report,
         )
-        written = export(session.mesh, done.result, output, self.overwrite)
+        written = export(session.mesh, done.result, output, overwrite)
         document = report_document(job, done, training.seconds)
         text = _json(document)
         write_atomically(report, lambda tmp: tmp.write_text(text))
         written.append(report)
-        self.messages.append("wrote " + ", ".join(str(p) for p in written))
+        self.state.messages.append("wrote " + ", ".join(str(p) for p in written))
         return written
 
     def screenshot(self) -> Path:
@@ -266,7 +275,7 @@ class App:
         while (path := self.out_dir / f"{self.session.name}_view_{index}.png").exists():
             index += 1
         save_png(path, picture)
-        self.messages.append(f"wrote {path}")
+        self.state.messages.append(f"wrote {path}")
         return path
 
     # ----------------------------------------------------------------- the frame
@@ -279,7 +288,7 @@ class App:
         self._collect_training()
         self._menu()
         if self.session is None:
-            imgui.text("loading..." if self.loading else (self.error or "no mesh open"))
+            imgui.text("loading..." if self.loading else (self.state.error or "no mesh open"))
             return
         panels = (self.views, self.optimise, self.plots, self.uv, self.bookmarks, self.exporter)
         for panel, (x, y, w, h) in zip(panels, LAYOUT.values(), strict=True):
@@ -305,11 +314,11 @@ class App:
                 self.open(None)
             imgui.separator()
             imgui.text("Open path (Enter):")
-            entered, self.open_path = imgui.input_text(
-                "##path", self.open_path, imgui.InputTextFlags_.enter_returns_true
+            entered, self.state.open_path = imgui.input_text(
+                "##path", self.state.open_path, imgui.InputTextFlags_.enter_returns_true
             )
-            if entered and self.open_path:
-                self.open(Path(self.open_path).expanduser())
+            if entered and self.state.open_path:
+                self.open(Path(self.state.open_path).expanduser())
                 imgui.close_current_popup()
             imgui.separator()
             if imgui.menu_item_simple("Quit"):
@@ -352,8 +361,6 @@ def add_ons() -> immapp.AddOnsParams:
 
 
 def _json(document: dict) -> str:
-    from geoscaler.compare import dumps
-
     return dumps(document) + "\n"
 
 

@@ -1,20 +1,22 @@
 """The app's side windows, one small class each: optimiser controls, live plots, UV inspector,
-bookmarks (with A/B metrics) and export. Each ``draw(app)`` reads and changes :class:`App`
-state; none of them blocks the UI thread for long.
+bookmarks (with A/B metrics) and export. Each ``draw(app)`` reads and changes the UI-editable
+:class:`~geoscaler.app.state.AppState` (``app.state``), never attributes of :class:`App` itself,
+and asks App for actions (start, export...); none of them blocks the UI thread for long.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 from imgui_bundle import ImVec2, ImVec4, imgui, implot
 
-from geoscaler.downsample import is_learned
-from geoscaler.methods import METHODS
+from geoscaler.methods import is_learned, method_names
 from geoscaler.metrics import psnr_fg, ssim_fg
+from geoscaler.protocol import VIEWS
 
 from .gl_renderer import use_screen
 from .training import SSIM_VIEWS
@@ -40,11 +42,11 @@ class OptimisePanel:
     """Method, scale, steps or time budget; start / pause / resume / stop; progress."""
 
     def __init__(self) -> None:
-        self.methods = list(METHODS)
+        self.methods = method_names(aliases=False)
 
     def draw(self, app: App) -> None:
         imgui.begin("Optimise")
-        settings = app.settings
+        settings = app.state.settings
         busy = app.training is not None and app.training.running
         imgui.begin_disabled(busy)
         index = self.methods.index(settings.method) if settings.method in self.methods else 0
@@ -59,8 +61,13 @@ class OptimisePanel:
             budget = settings.time_budget or 0.0
             changed, budget = imgui.input_float("time budget (s)", budget, 5.0, 30.0, "%.0f")
             settings.time_budget = budget if budget > 0 else None
-            changed, views = imgui.input_int("validation views", settings.views)
-            settings.views = min(max(views, 1), 60)
+            evaluation = settings.evaluation
+            count = len(evaluation.view_indices)
+            changed, count = imgui.input_int("validation views", count)
+            if changed:
+                count = min(max(count, 1), VIEWS)
+                views = None if count == VIEWS else tuple(range(count))
+                settings.evaluation = replace(evaluation, views=views)
         imgui.end_disabled()
         self._buttons(app, busy)
         self._status(app)
@@ -81,11 +88,11 @@ class OptimisePanel:
                 training.stop()
 
     def _status(self, app: App) -> None:
-        if app.error:
-            imgui.text_colored(RED, app.error)
+        if app.state.error:
+            imgui.text_colored(RED, app.state.error)
             if imgui.small_button("dismiss"):
-                app.error = None
-        state = app.state
+                app.state.error = None
+        state = app.progress
         if state is None:
             imgui.text("not started: the downsampled view shows bicubic")
             return
@@ -126,7 +133,7 @@ class PlotsPanel:
         imgui.same_line()
         if imgui.radio_button("against time (s)", self.against_time):
             self.against_time = True
-        state = app.state
+        state = app.progress
         size = ImVec2((imgui.get_content_region_avail().x - 8) / 2, -1)
         x_label = "seconds" if self.against_time else "step"
         fit = implot.AxisFlags_.auto_fit
@@ -237,40 +244,41 @@ class UVPanel:
 
 
 class BookmarksPanel:
-    """Bookmark the camera, name, jump, A/B with this view's metrics."""
+    """Bookmark the camera, name, jump, A/B with this view's metrics (the selected bookmark is
+    ``app.state.bookmark``)."""
 
     def __init__(self) -> None:
-        self.selected = -1
         self.metrics: dict[str, float] | None = None
 
     def draw(self, app: App) -> None:
         imgui.begin("Bookmarks")
+        state = app.state
         bookmarks = app.session.bookmarks
         if imgui.button("Bookmark this view"):
             app.guard(app.bookmark_view)
-            self.selected = len(bookmarks.items) - 1
+            state.bookmark = len(bookmarks.items) - 1
         imgui.same_line()
         imgui.text_disabled(str(bookmarks.path))
         for index, bookmark in enumerate(bookmarks.items):
-            clicked, _ = imgui.selectable(f"{bookmark.name}##{index}", index == self.selected)
+            clicked, _ = imgui.selectable(f"{bookmark.name}##{index}", index == state.bookmark)
             if clicked:
-                self.selected = index
+                state.bookmark = index
                 self.jump(app, index)
-        if 0 <= self.selected < len(bookmarks.items):
-            bookmark = bookmarks.items[self.selected]
+        if 0 <= state.bookmark < len(bookmarks.items):
+            bookmark = bookmarks.items[state.bookmark]
             changed, name = imgui.input_text("name", bookmark.name)
             if changed and name:
-                app.guard(lambda: bookmarks.rename(self.selected, name))
+                app.guard(lambda: bookmarks.rename(state.bookmark, name))
             if imgui.button("Go to"):
-                self.jump(app, self.selected)
+                self.jump(app, state.bookmark)
             imgui.same_line()
             if imgui.button("A/B here"):
-                self.jump(app, self.selected)
-                app.views.mode = AB
+                self.jump(app, state.bookmark)
+                state.view_mode = AB
             imgui.same_line()
             if imgui.button("Delete"):
-                app.guard(lambda: bookmarks.remove(self.selected))
-                self.selected = -1
+                app.guard(lambda: bookmarks.remove(state.bookmark))
+                state.bookmark = -1
         if self.metrics is not None:
             imgui.text(
                 "this view, downsampled vs original (GL renders): "
@@ -280,7 +288,7 @@ class BookmarksPanel:
 
     def jump(self, app: App, index: int) -> None:
         app.views.jump(app.session.bookmarks.items[index].orbit)
-        app.views.render(app.session)
+        app.views.render(app.session, app.state.view_mode)
         self.metrics = view_metrics(app)
 
 
@@ -304,9 +312,10 @@ class ExportPanel:
 
     def draw(self, app: App) -> None:
         imgui.begin("Export")
-        _, app.export_name = imgui.input_text("mesh file", app.export_name)
-        _, app.overwrite = imgui.checkbox("replace existing files", app.overwrite)
-        ready = app.state is not None and app.state.result is not None
+        state = app.state
+        _, state.export_name = imgui.input_text("mesh file", state.export_name)
+        _, state.overwrite = imgui.checkbox("replace existing files", state.overwrite)
+        ready = app.progress is not None and app.progress.result is not None
         imgui.begin_disabled(not ready)
         if imgui.button("Export mesh + report"):
             app.guard(app.export)
@@ -316,6 +325,6 @@ class ExportPanel:
             imgui.text_disabled("(run a method first)")
         if imgui.button("Save screenshot"):
             app.guard(app.screenshot)
-        for line in app.messages[-6:]:
+        for line in state.messages[-6:]:
             imgui.text_wrapped(line)
         imgui.end()

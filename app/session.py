@@ -11,9 +11,9 @@ from pathlib import Path
 import moderngl
 import numpy as np
 
-from geoscaler.baselines import bicubic
+from geoscaler.filters import bicubic, reference_textures
 from geoscaler.mesh import TexturedMesh
-from geoscaler.methods import reference_textures
+from geoscaler.protocol import IMAGE_SIZE
 
 from .bookmarks import Bookmarks
 from .gl_renderer import GLRenderer, Surface
@@ -39,7 +39,7 @@ class Session:
         mesh_path: Path | None,
         out_dir: Path,
         scale: int,
-        image_size: int = 512,
+        image_size: int = IMAGE_SIZE,
     ):
         self.mesh = mesh
         self.mesh_path = mesh_path

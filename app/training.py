@@ -1,11 +1,11 @@
 """The optimisation as the app runs it: on a worker thread, observable from the UI thread.
 
-The worker rasterises the validation views, scores bicubic on them (the gain's zero), then runs
-:func:`geoscaler.downsample.downsample` -- the CLI's job -- with a
-:class:`~geoscaler.optimize.Controller` for pause/resume/stop and a progress callback that
-records the loss and validation PSNR and, a few times a second, pulls the current texture (and
-UVs) with ``ProgressEvent.candidate``. The UI thread only reads :class:`TrainingState` under
-its lock.
+The worker runs :func:`geoscaler.job.downsample` -- the CLI's job -- with a
+:class:`~geoscaler.optimize.Controller` for pause/resume/stop and a
+:class:`~geoscaler.job.JobObserver` that records the caching, bicubic's score on Q (the gain's
+zero, scored before the method starts), the loss and validation PSNR and, a few times a second,
+pulls the current texture (and UVs) with ``ProgressEvent.candidate``. The UI thread only reads
+:class:`TrainingState` under its lock.
 
 On 2 cores the worker runs torch on one thread (``torch.set_num_threads(1)``, process-wide), so
 the UI thread and the GL driver keep the other core. On Linux the worker also runs at the lowest
@@ -28,24 +28,16 @@ from typing import Any
 import numpy as np
 import torch
 
-from geoscaler.cameras import VALIDATION_DISTANCE, VALIDATION_VIEWS
-from geoscaler.compare import protocol_cameras
-from geoscaler.downsample import (
-    Downsampled,
-    check_method,
-    check_options,
-    check_scale,
-    check_scale_fits,
-    downsample,
-    is_learned,
-)
-from geoscaler.evaluate import ViewSet
+from geoscaler.arguments import DEFAULT_TIME_BUDGET, check_method, check_scale, method_options
+from geoscaler.job import Downsampled, JobObserver, checked_output_sizes, downsample
 from geoscaler.mesh import TexturedMesh
-from geoscaler.methods import run_method
+from geoscaler.methods import is_learned
 from geoscaler.metrics import evaluate
 from geoscaler.optimize import Controller, ProgressEvent
+from geoscaler.protocol import GAIN_REFERENCE, PROTOCOL_EVALUATION, Evaluation
 from geoscaler.render import Renderer
 from geoscaler.texture import MipTexture, linear_to_texture, quantize_linear
+from geoscaler.views import ViewSet
 
 from .gl_renderer import srgb_mip_chain
 
@@ -78,12 +70,11 @@ class TrainingSettings:
     """What to run.
 
     Attributes:
-        method: a name from :data:`geoscaler.methods.METHODS`.
+        method: a registered method name (:func:`geoscaler.methods.method_names`).
         scale: reduction factor per side.
         steps: step limit of learned methods (None: the method's default).
         time_budget: seconds a learned method may spend (None: the CLI's default, 60).
-        views: validation views standing for Q (``VALIDATION_VIEWS`` = all 60, the protocol).
-        image_size: side of the torch renders (the protocol's 512; tests use less).
+        evaluation: image size and views of the torch renders (protocol 1; tests use less).
         optimize: ``OptimizeConfig`` overrides for learned methods (tests use a small pool).
     """
 
@@ -91,8 +82,7 @@ class TrainingSettings:
     scale: int = 4
     steps: int | None = None
     time_budget: float | None = None
-    views: int = VALIDATION_VIEWS
-    image_size: int = 512
+    evaluation: Evaluation = PROTOCOL_EVALUATION
     optimize: dict[str, Any] = field(default_factory=dict)
 
 
@@ -141,14 +131,20 @@ class Training:
 
     def __init__(self, mesh: TexturedMesh, settings: TrainingSettings):
         check_method(settings.method)
-        check_scale_fits(mesh, check_scale(settings.scale))
+        checked_output_sizes(mesh, check_scale(settings.scale))
         self.mesh = mesh
         self.settings = settings
-        self.options = check_options(
-            settings.method, "cpu", 0, settings.steps, settings.time_budget
+        extra = {"optimize": dict(settings.optimize)} if settings.optimize else {}
+        self.options = method_options(
+            [settings.method],
+            "cpu",
+            0,
+            settings.steps,
+            settings.time_budget,
+            extra,
+            default_budget=DEFAULT_TIME_BUDGET,
         )
-        if settings.optimize:
-            self.options.extra["optimize"] = dict(settings.optimize)
+        self.q: ViewSet | None = None
         self.controller = Controller()
         self.lock = threading.Lock()
         self.state = TrainingState(total_steps=settings.steps or 0)
@@ -210,26 +206,15 @@ class Training:
         try:
             self._set(phase="caching validation views")
             settings = self.settings
-            views = list(range(settings.views))
-            renderer = Renderer(self.mesh, "cpu", image_size=settings.image_size)
-            q = ViewSet(renderer, protocol_cameras(VALIDATION_DISTANCE, views), self._caching)
-            self.q = q
-            bicubic = run_method("bicubic", self.mesh, settings.scale)
-            bicubic_psnr = float(q.score(bicubic.textures)["psnr_fg"].mean())
-            learned = is_learned(settings.method)
-            self._set(
-                bicubic_psnr=bicubic_psnr,
-                phase="caching training views" if learned else "running " + settings.method,
-            )
-            self.options.on_event = self._on_event
+            renderer = Renderer(self.mesh, "cpu", settings.evaluation)
             done = downsample(
                 self.mesh,
                 settings.scale,
                 settings.method,
                 self.options,
-                controller=self.controller,
-                views=views,
-                q=q,
+                renderer,
+                _Observer(self),
+                self.controller,
             )
             rows = {row["method"]: row for row in done.rows}
             best = rows[settings.method]["psnr_fg"]
@@ -252,14 +237,13 @@ class Training:
         """Mean SSIM-fg of 8-bit-quantised ``textures`` (on ``uvs``, None: the mesh's) over
         the first :data:`SSIM_VIEWS` of Q."""
         q = self.q
+        if q is None:
+            return math.nan
         views = range(min(SSIM_VIEWS, len(q)))
         mips = [None if t is None else MipTexture(quantize_linear(t)) for t in textures]
         images = q.render(mips, uvs, views=views)
         scores = evaluate(images, q.references[: len(views)], q.foreground[: len(views)])
         return float(scores["ssim_fg"].mean())
-
-    def _caching(self, done: int, total: int) -> None:
-        self._set(caching=(done, total))
 
     def _on_event(self, event: ProgressEvent) -> None:
         if event.phase == "caching":
@@ -300,3 +284,29 @@ class Training:
                 self.state.textures, self.state.chains = textures, chains
                 self.state.uvs = moved
                 self.state.texture_version += 1
+
+
+class _Observer(JobObserver):
+    """Feeds a :class:`Training`'s state from its job."""
+
+    def __init__(self, training: Training):
+        self.training = training
+
+    def stage(self, what: str, done: int, total: int) -> None:
+        if what == "caching Q":
+            self.training._set(caching=(done, total))
+
+    def views_cached(self, distance: float, views: ViewSet) -> None:
+        self.training.q = views
+
+    def scored(self, row: dict[str, Any]) -> None:
+        if row["method"] == GAIN_REFERENCE:
+            self.training._set(bicubic_psnr=row["psnr_fg"])
+
+    def method_started(self, name: str, scale: int, time_budget: float | None) -> None:
+        if name == self.training.settings.method:
+            learned = is_learned(name)
+            self.training._set(phase="caching training views" if learned else f"running {name}")
+
+    def on_event(self, event: ProgressEvent) -> None:
+        self.training._on_event(event)

@@ -21,6 +21,7 @@ from .session import Session
 
 if TYPE_CHECKING:
     from .main import App
+    from .state import AppState
 
 MODES = ("side by side", "wipe", "difference", "A/B")
 SIDE_BY_SIDE, WIPE, DIFFERENCE, AB = range(len(MODES))
@@ -68,12 +69,12 @@ class ViewsPanel:
     """The "Views" window.
 
     Mouse on a view: left drag orbits, right or middle drag (or shift + left) pans, the wheel
-    zooms, a double click resets. Space toggles A/B.
+    zooms, a double click resets. Space toggles A/B. The mode (side by side, wipe, ...) is
+    ``app.state.view_mode``.
     """
 
     def __init__(self) -> None:
         self.orbit = Orbit()
-        self.mode = SIDE_BY_SIDE
         self.split = 0.5
         self.gain = 4.0
         self.show_candidate = True  # the A/B toggle: B is the downsampled view
@@ -97,9 +98,9 @@ class ViewsPanel:
         """The ``(original, downsampled)`` targets on screen."""
         return session.previews if self.previewing else session.targets
 
-    def render(self, session: Session) -> None:
-        """Draw both views (and the composed picture) if anything changed, as previews while
-        the camera moves, in full once it rests."""
+    def render(self, session: Session, mode: int) -> None:
+        """Draw both views (and the composed picture for ``mode`` wipe or difference) if
+        anything changed, as previews while the camera moves, in full once it rests."""
         refine = self.previewing and not self.moving
         if not (self.dirty or refine) or session.candidate is None:
             self.moving = False
@@ -115,11 +116,11 @@ class ViewsPanel:
             self.original_drawn = key
         else:  # a new texture alone leaves the original as it is
             renderer.render(camera, session.candidate, candidate, pan)
-        if self.mode in (WIPE, DIFFERENCE):
+        if mode in (WIPE, DIFFERENCE):
             if self.composer is None:
                 self.composer = Composer(renderer.ctx, renderer.image_size)
-            mode = 0 if self.mode == WIPE else 1
-            self.composer.compose(original.image, candidate.image, mode, self.split, self.gain)
+            composed = 0 if mode == WIPE else 1
+            self.composer.compose(original.image, candidate.image, composed, self.split, self.gain)
         use_screen(renderer.ctx)
         # Finishing here, before imgui samples the views, measured 2x more frames a second on
         # Mesa llvmpipe than letting the driver interleave the work (16 vs 7.7 fps orbiting).
@@ -128,15 +129,16 @@ class ViewsPanel:
         self.renders += 1
 
     def draw(self, app: App) -> None:
-        session = app.session
+        session, state = app.session, app.state
         imgui.begin("Views")
-        self._toolbar(session)
-        self.render(session)
+        self._toolbar(state)
+        mode = state.view_mode
+        self.render(session, mode)
         width = imgui.get_content_region_avail().x
         height = imgui.get_content_region_avail().y - imgui.get_text_line_height_with_spacing()
         original, candidate = self.shown(session)
         self.rects.clear()
-        if self.mode == SIDE_BY_SIDE:
+        if mode == SIDE_BY_SIDE:
             side = max(min((width - 8) / 2, height), 64)
             imgui.text(f"original ({session.display_path})")
             imgui.same_line(side + 16)
@@ -146,36 +148,36 @@ class ViewsPanel:
             self._view("##downsampled", candidate.image, side)
         else:
             side = max(min(width, height), 64)
-            if self.mode == AB:
+            if mode == AB:
                 shown = candidate if self.show_candidate else original
                 label = f"B: {session.candidate_label}" if self.show_candidate else "A: original"
                 imgui.text(label)
                 self._view("##ab", shown.image, side)
             else:
-                imgui.text(MODES[self.mode])
+                imgui.text(MODES[mode])
                 assert self.composer is not None
                 self._view("##composed", self.composer.image, side)
         imgui.end()
 
-    def _toolbar(self, session: Session) -> None:
+    def _toolbar(self, state: AppState) -> None:
         for index, name in enumerate(MODES):
-            if imgui.radio_button(name, self.mode == index):
-                self.mode, self.dirty = index, True
+            if imgui.radio_button(name, state.view_mode == index):
+                state.view_mode, self.dirty = index, True
             imgui.same_line()
         if imgui.button("Reset view"):
             self.orbit.reset()
             self.dirty = True
-        if self.mode == WIPE:
+        if state.view_mode == WIPE:
             changed, self.split = imgui.slider_float("split", self.split, 0.0, 1.0)
             self.dirty |= changed
-        elif self.mode == DIFFERENCE:
+        elif state.view_mode == DIFFERENCE:
             changed, self.gain = imgui.slider_float("gain", self.gain, 1.0, 50.0, "x%.0f")
             self.dirty |= changed
-        elif self.mode == AB:
+        elif state.view_mode == AB:
             if imgui.button("A/B (space)"):
                 self.show_candidate = not self.show_candidate
         if (
-            self.mode == AB
+            state.view_mode == AB
             and imgui.is_key_pressed(imgui.Key.space)
             and not imgui.get_io().want_text_input
         ):

@@ -48,9 +48,11 @@ def main() -> None:
     from geoscaler.app.main import App, add_ons
     from geoscaler.app.training import TrainingSettings
     from geoscaler.procedural import demo_mesh
+    from geoscaler.protocol import Evaluation
 
     path = Path(args.mesh) if args.mesh else (DEFAULT_MESH if DEFAULT_MESH.is_file() else None)
-    settings = TrainingSettings(method="direct", scale=4, time_budget=600.0, views=args.views)
+    evaluation = Evaluation(views=tuple(range(args.views)))
+    settings = TrainingSettings(method="direct", scale=4, time_budget=600.0, evaluation=evaluation)
     app = App(path, Path(os.environ.get("TMPDIR", "/tmp")), settings, demo=lambda: demo_mesh(40))
     frames: dict[str, list[float]] = {mode: [] for mode in MODES}
     steps: dict[str, list[int]] = {mode: [] for mode in MODES}  # the optimiser's, at each frame
@@ -60,7 +62,7 @@ def main() -> None:
         if app.session is not None and app.training is None:
             app.start_training()
         app.gui()
-        state = app.state
+        state = app.progress
         if state is None or state.step < 1:
             hello_imgui.get_runner_params().fps_idling.enable_idling = False
             return  # still caching views: measure while steps run
@@ -83,7 +85,7 @@ def main() -> None:
     from imgui_bundle import immapp
 
     immapp.run(params, add_ons())
-    state = app.state
+    state = app.progress
     session = app.session
     result = {
         "mesh": session.display_path if session else None,

@@ -9,8 +9,8 @@ from dataclasses import replace
 
 import torch
 
-from geoscaler.mesh import load_mesh
-from geoscaler.nn.method import PRESETS, build_network
+from geoscaler.io import load_mesh
+from geoscaler.methods.network import PRESETS, build_network
 
 
 def main(mesh_path: str, presets: str) -> None:

@@ -26,15 +26,15 @@ from pathlib import Path
 
 import torch
 
-from geoscaler.baselines import lanczos
 from geoscaler.cameras import validation_cameras
-from geoscaler.evaluate import ViewSet
-from geoscaler.mesh import TexturedMesh, load_mesh
-from geoscaler.methods import reference_textures
-from geoscaler.optimize import ViewCache
+from geoscaler.filters import lanczos, reference_textures
+from geoscaler.io import load_mesh
+from geoscaler.mesh import TexturedMesh
+from geoscaler.optimize import view_loss
 from geoscaler.procedural import demo_mesh
 from geoscaler.render import Renderer, resolve_device
 from geoscaler.texture import MipTexture, texture_to_linear
+from geoscaler.views import ViewCache, ViewSet
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 DEFAULT_SCANS = ["ycb_lego_duplo_a/textured.obj", "ycb_chain/textured.obj"]
@@ -71,7 +71,7 @@ def bench_mesh(name: str, mesh: TexturedMesh, views: int, device: torch.device) 
         taps = view.taps[0][0]
         taps_mb.append(sum(t.element_size() * t.nelement() for t in vars(taps).values()) / 1e6)
         texels = small_linear.clone().requires_grad_(True)
-        step = lambda v=view, t=texels: v.loss(0, [t], None, 0.0).backward()  # noqa: E731
+        step = lambda v=view, t=texels: view_loss(v, 0, [t], None, 0.0).backward()  # noqa: E731
         train.append(_timed(step, device))
     return {
         "mesh": name,

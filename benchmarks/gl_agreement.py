@@ -29,7 +29,7 @@ def main() -> None:
 
     from geoscaler.app.gl_renderer import GLRenderer, headless_context
     from geoscaler.cameras import validation_cameras
-    from geoscaler.mesh import load_mesh
+    from geoscaler.io import load_mesh
     from geoscaler.metrics import psnr_fg
     from geoscaler.procedural import demo_mesh
     from geoscaler.render import Renderer

@@ -28,14 +28,15 @@ from pathlib import Path
 import torch
 
 from geoscaler.bench import find_meshes
-from geoscaler.compare import protocol_cameras
-from geoscaler.direct import lanczos_texel_model
-from geoscaler.evaluate import ViewSet
-from geoscaler.mesh import load_mesh
-from geoscaler.methods import METHODS, MethodOptions
+from geoscaler.cameras import validation_cameras
+from geoscaler.filters import output_sizes
+from geoscaler.io import load_mesh
+from geoscaler.methods import run_method
+from geoscaler.methods.direct import lanczos_texel_model
 from geoscaler.optimize import OptimizeConfig, optimize
 from geoscaler.render import Renderer, resolve_device
 from geoscaler.texture import linear_to_texture
+from geoscaler.views import ViewCache, ViewSet
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -44,11 +45,11 @@ def ceiling_row(path: Path, scale: int, distance: float, steps: int, lr: float, 
     """Bicubic's PSNR-fg and the gains of Lanczos and of the texel ceiling on one mesh."""
     mesh = load_mesh(path)
     renderer = Renderer(mesh, device)
-    cameras = protocol_cameras(distance)
-    views = ViewSet(renderer, cameras)
+    cameras = validation_cameras(distance)
+    views = ViewCache(ViewSet(renderer, cameras), output_sizes(mesh, scale), with_taps=True)
     psnr = {}
     for name in ("bicubic", "lanczos"):
-        textures = METHODS[name](mesh, scale, MethodOptions()).textures
+        textures = run_method(name, mesh, scale).textures
         psnr[name] = float(views.score(textures)["psnr_fg"].mean())
     start = time.perf_counter()
     config = OptimizeConfig(steps=steps, lr=lr, ssim_weight=0.0, validate_every=steps)

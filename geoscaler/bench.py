@@ -2,7 +2,7 @@
 
 ``geoscaler bench PATH...`` finds mesh files (a folder whose ``meta.json`` names an ``"entry"``
 contributes that one file; other folders every ``.obj``/``.gltf``/``.glb`` in them, searched
-recursively), runs :func:`geoscaler.compare.compare_mesh` on each, skips (and reports) a mesh
+recursively), runs :func:`geoscaler.job.compare_mesh` on each, skips (and reports) a mesh
 that fails, and averages the protocol metrics over the meshes that succeeded.
 """
 
@@ -23,26 +23,21 @@ from typing import Any
 
 import numpy as np
 
-from geoscaler import PROTOCOL
-from geoscaler.cameras import VALIDATION_DISTANCE
-from geoscaler.compare import (
-    BYTES_PER_TEXEL,
-    ROW_KEYS,
-    Progress,
-    check_distances,
-    check_scales,
-    compare_mesh,
-    describe_device,
-    dumps,
-    json_safe,
-    parse_methods,
-    prepare_out_dir,
-    run_settings,
-)
+from geoscaler.arguments import check_distances, check_method, check_scales, comparison_settings
 from geoscaler.errors import GeoscalerError
-from geoscaler.mesh import SUPPORTED_SUFFIXES, load_mesh
+from geoscaler.io import SUPPORTED_SUFFIXES, load_mesh
+from geoscaler.job import ROW_KEYS, JobObserver, compare_mesh, prepare_out_dir
 from geoscaler.methods import MethodOptions
 from geoscaler.metrics import METRIC_NAMES
+from geoscaler.protocol import (
+    BYTES_PER_TEXEL,
+    PROTOCOL,
+    PROTOCOL_EVALUATION,
+    VALIDATION_DISTANCE,
+    Evaluation,
+)
+from geoscaler.render import Renderer
+from geoscaler.report import describe_device, dumps, json_safe
 
 METRIC_TITLES = {
     "psnr_fg": "PSNR-fg (dB)",
@@ -75,7 +70,7 @@ class BenchResult:
 
     Attributes:
         rows: one dict per (mesh, distance, scale, method): ``"mesh"``, ``"path"`` and
-            :data:`geoscaler.compare.ROW_KEYS`.
+            :data:`geoscaler.job.ROW_KEYS`.
         meshes: the meshes that were evaluated.
         failed: ``(path, message)`` of each mesh that was skipped.
         device: the torch device of the renders (e.g. ``"cpu"``).
@@ -151,7 +146,7 @@ def bench_meshes(
     methods: Sequence[str],
     distances: Sequence[float] = (VALIDATION_DISTANCE,),
     options: MethodOptions | None = None,
-    views: Sequence[int] | None = None,
+    evaluation: Evaluation = PROTOCOL_EVALUATION,
     progress: bool = True,
     report: Callable[[str], None] | None = None,
 ) -> BenchResult:
@@ -159,7 +154,8 @@ def bench_meshes(
 
     Args:
         meshes: from :func:`find_meshes`.
-        scales, methods, distances, options, views: as :func:`geoscaler.compare.compare_mesh`.
+        scales, methods, distances, options: as :func:`geoscaler.job.compare_mesh`.
+        evaluation: image size and views of every mesh's renders (default: protocol 1).
         progress: show a tqdm bar on stderr.
         report: receives one line per skipped mesh (default: printed above the bar).
 
@@ -169,21 +165,23 @@ def bench_meshes(
     from tqdm import tqdm
 
     scales, distances = check_scales(scales), check_distances(distances)
-    methods = parse_methods(",".join(methods))
+    methods = [check_method(name) for name in methods]
+    options = options or MethodOptions()
     result = BenchResult()
     start = time.perf_counter()
     with tqdm(meshes, desc="bench", unit="mesh", disable=not progress) as bar:
         say = report or (lambda line: bar.write(line, file=sys.stderr))
         for entry in bar:
             try:
+                mesh = load_mesh(entry.path)
                 comparison = compare_mesh(
-                    load_mesh(entry.path),
+                    mesh,
                     scales,
                     methods,
                     distances,
                     options,
-                    views,
-                    _postfix(bar, entry.name),
+                    Renderer(mesh, options.device, evaluation),
+                    _MeshPostfix(bar, entry.name),
                 )
             except (KeyboardInterrupt, MemoryError):
                 raise
@@ -201,13 +199,14 @@ def bench_meshes(
     return result
 
 
-def _postfix(bar: Any, name: str) -> Progress:
-    """A progress callback showing ``name: what (done/total)`` after the mesh bar."""
+class _MeshPostfix(JobObserver):
+    """Shows ``name: what (done/total)`` after the bar over meshes."""
 
-    def update(what: str, done: int, total: int) -> None:
-        bar.set_postfix_str(f"{name}: {what} ({done}/{total})")
+    def __init__(self, bar: Any, name: str):
+        self.bar, self.name = bar, name
 
-    return update
+    def stage(self, what: str, done: int, total: int) -> None:
+        self.bar.set_postfix_str(f"{self.name}: {what} ({done}/{total})")
 
 
 def _failure_message(error: Exception, path: Path) -> str:
@@ -435,14 +434,14 @@ def command_line(args: Any) -> str:
 
 def command(args: Any) -> None:
     """``geoscaler bench``: run, print the tables (or JSON), write the files under --out."""
-    from geoscaler.files import save_png, write_atomically
+    from geoscaler.io import save_png, write_atomically
 
-    scales, methods, distances, options = run_settings(args)
+    scales, methods, distances, options = comparison_settings(args)
     meshes = find_meshes(args.paths)
     names = [*OUTPUT_FILES, *(plot_name(d, distances) for d in distances)]
     if args.out:
         prepare_out_dir(args.out, names, args.force, [m.path for m in meshes])
-    result = bench_meshes(meshes, scales, methods, distances, options)
+    result = bench_meshes(meshes, scales, methods, distances, options, args.evaluation)
     if not result.rows:
         raise GeoscalerError(f"none of the {len(meshes)} meshes could be evaluated (reasons above)")
     line = command_line(args)

@@ -13,12 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-FOV_Y_DEGREES = 45.0
-VALIDATION_VIEWS = 60
-VALIDATION_DISTANCE = 2.4
-NEAR_DISTANCE = 1.5
-FAR_DISTANCE = 4.0
-TRAINING_DISTANCES = (1.8, 3.0)
+from geoscaler.protocol import FOV_Y_DEGREES, RANGE_S, VALIDATION_DISTANCE, VIEWS, Evaluation
 
 _POLE_COS = math.cos(math.radians(1.0))
 
@@ -83,7 +78,7 @@ def _unit(vectors: np.ndarray) -> np.ndarray:
     return vectors / np.linalg.norm(vectors, axis=-1, keepdims=True)
 
 
-def fibonacci_directions(count: int = VALIDATION_VIEWS) -> np.ndarray:
+def fibonacci_directions(count: int = VIEWS) -> np.ndarray:
     """``(count, 3)`` float64 unit directions of the protocol's Fibonacci sphere, view i = row i."""
     i = np.arange(count, dtype=np.float64)
     z = 1.0 - (2.0 * i + 1.0) / count
@@ -102,7 +97,7 @@ def validation_cameras(distance: float = VALIDATION_DISTANCE) -> list[Camera]:
 def sample_training_cameras(
     count: int,
     seed: int,
-    distances: tuple[float, float] = TRAINING_DISTANCES,
+    distances: tuple[float, float] = RANGE_S,
 ) -> list[Camera]:
     """Range S: directions uniform on the sphere, distance uniform in ``distances``.
 
@@ -112,3 +107,10 @@ def sample_training_cameras(
     directions = _unit(rng.standard_normal((count, 3)))
     lengths = rng.uniform(distances[0], distances[1], size=count)
     return [Camera(tuple(d), float(r)) for d, r in zip(directions, lengths, strict=True)]
+
+
+def view_set_cameras(distance: float, evaluation: Evaluation) -> list[Camera]:
+    """The cameras of the protocol's view set at ``distance`` that ``evaluation`` scores on:
+    all 60 (protocol 1) or the views it lists."""
+    cameras = validation_cameras(distance)
+    return [cameras[i] for i in evaluation.view_indices]

@@ -9,15 +9,16 @@ from pathlib import Path
 
 import numpy as np
 
-from geoscaler import PROTOCOL, __version__
+from geoscaler import __version__
 from geoscaler.errors import GeoscalerError
+from geoscaler.protocol import PROTOCOL, PROTOCOL_EVALUATION, Evaluation
 
 DEFAULT_DEMO_DIR = Path("assets")
 
 
 def mesh_info(path: Path) -> dict:
     """Facts about a mesh file: sizes, materials, textures, UV charts and texture coverage."""
-    from geoscaler.mesh import load_mesh
+    from geoscaler.io import load_mesh
     from geoscaler.uvmaps import chart_labels, uv_coverage
 
     mesh = load_mesh(path)
@@ -77,50 +78,170 @@ def cmd_info(args: argparse.Namespace) -> None:
         _print_info(info)
 
 
-def _render_views(mesh, cameras, device: str | None, progress: bool = False) -> list[np.ndarray]:
-    """uint8 protocol renders of ``mesh`` with its own texture, one per camera."""
-    from tqdm import tqdm
-
+def cmd_render(args: argparse.Namespace) -> None:
+    from geoscaler.arguments import check_distance, check_view
+    from geoscaler.cameras import validation_cameras
+    from geoscaler.io import check_output, load_mesh, save_png
+    from geoscaler.protocol import VALIDATION_DISTANCE
     from geoscaler.render import Renderer, image_to_uint8
 
-    renderer = Renderer(mesh, device)
-    textures = renderer.reference_textures()
-    images = []
-    for camera in tqdm(cameras, desc="rendering", unit="view", disable=not progress):
-        images.append(image_to_uint8(renderer.render(renderer.rasterize(camera), textures)))
-    return images
-
-
-def cmd_render(args: argparse.Namespace) -> None:
-    from geoscaler.cameras import VALIDATION_VIEWS, validation_cameras
-    from geoscaler.files import check_output, save_png
-    from geoscaler.mesh import load_mesh
-
-    if not 0 <= args.view < VALIDATION_VIEWS:
-        raise GeoscalerError(f"--view {args.view}: must be 0 to {VALIDATION_VIEWS - 1}")
-    if args.distance is not None and not args.distance > 1.0:
-        raise GeoscalerError(f"--distance {args.distance}: must be over 1 (outside the mesh)")
+    view = check_view(args.view)
+    distance = VALIDATION_DISTANCE if args.distance is None else check_distance(args.distance)
     mesh_path = Path(args.mesh)
     out = check_output(args.output, force=args.force, inputs=[mesh_path])
     if out.suffix.lower() != ".png":
         raise GeoscalerError(f"{out}: renders are written as PNG; use a .png name")
     mesh = load_mesh(mesh_path)
-    camera = validation_cameras(args.distance or 2.4)[args.view]
-    (image,) = _render_views(mesh, [camera], args.device)
+    camera = validation_cameras(distance)[view]
+    renderer = Renderer(mesh, args.device, args.evaluation)
+    render = renderer.render(renderer.rasterize(camera), renderer.reference_textures())
+    image = image_to_uint8(render)
     save_png(out, image)
-    print(f"wrote {out} (view {args.view} at distance {camera.distance}, {image.shape[1]} px)")
+    print(f"wrote {out} (view {view} at distance {camera.distance}, {image.shape[1]} px)")
 
 
 def cmd_downsample(args: argparse.Namespace) -> None:
-    from geoscaler.downsample import command
+    from geoscaler.arguments import (
+        DEFAULT_TIME_BUDGET,
+        check_method,
+        check_variant,
+        method_options,
+        method_settings,
+    )
+    from geoscaler.job import prepare
 
-    command(args)
+    settings = method_settings(args)
+    method = check_method(args.method)
+    if args.variant is not None:
+        if method != "geoscaler":
+            raise GeoscalerError("--variant: only --method geoscaler has variants")
+        settings["variant"] = check_variant(args.variant)
+    options = method_options(
+        [method],
+        args.device,
+        args.seed,
+        args.steps,
+        args.time_budget,
+        settings,
+        default_budget=DEFAULT_TIME_BUDGET,
+    )
+    job = prepare(args.mesh, args.output, args.scale, method, options, args.force, args.report)
+    downsample_and_report(job, args.evaluation)
+
+
+def downsample_and_report(
+    job, evaluation: Evaluation = PROTOCOL_EVALUATION, progress: bool = True, say=print
+):
+    """Run a prepared job with a progress bar, write its report, print what was done.
+
+    A first Ctrl-C stops the optimisation and the best result so far is still written; a
+    second raises KeyboardInterrupt. Returns ``(Downsampled, report document)``.
+    """
+    import time
+
+    from geoscaler.console import DownsampleProgress, stop_on_interrupt
+    from geoscaler.io import write_atomically
+    from geoscaler.job import run_job
+    from geoscaler.methods import is_learned
+    from geoscaler.optimize import Controller
+    from geoscaler.render import Renderer
+    from geoscaler.report import dumps, format_report, report_document
+
+    start = time.perf_counter()
+    controller = Controller()
+    renderer = Renderer(job.mesh, job.options.device, evaluation)
+    bar = DownsampleProgress(progress, len(evaluation.view_indices), is_learned(job.method))
+    try:
+        with stop_on_interrupt(controller, bar.write):
+            done, written = run_job(job, renderer, bar, controller)
+            bar.close()
+            document = report_document(job, done, time.perf_counter() - start)
+            if job.report is not None:
+                text = dumps(document) + "\n"
+                write_atomically(job.report, lambda tmp: tmp.write_text(text))
+                written.append(job.report)
+    finally:
+        bar.close()
+    say(format_report(document))
+    for path in written:
+        say(f"wrote {path}")
+    return done, document
+
+
+DEMO_MESH_NAME = "geoscaler_demo.glb"
+DEMO_SCALE = 4
+DEMO_TIME_BUDGET = 75.0
+DEMO_STEPS = 120
+"""Budget and step limit of ``direct`` in ``geoscaler demo``, caches included. Measured on the
+idle 2-core machine (CPU, 2 torch threads): Q 11-12 s, training views and taps 27-35 s, about
+0.25 s a step, report and picture 20 s; ``geoscaler demo`` took 95-105 s in all (100-120
+steps, +0.55 to +0.61 dB PSNR-fg over bicubic). The step limit lets the cosine schedule end
+where the machine is fast enough; the budget bounds the demo's time where it is not. On a
+machine shared with other CPU work the demo takes longer and may run few or no steps."""
+
+
+def demo(
+    out_dir: str | Path,
+    device: str = "auto",
+    time_budget: float | None = None,
+    steps: int | None = None,
+    progress: bool = True,
+    say=print,
+    evaluation: Evaluation = PROTOCOL_EVALUATION,
+    optimize: dict | None = None,
+) -> dict:
+    """``geoscaler demo``: build (or reuse) the demo asset in ``out_dir`` and downsample it.
+
+    Writes ``geoscaler_demo_x4.glb``, its report ``geoscaler_demo_x4.json`` and the picture
+    ``demo_comparison.png`` (original | bicubic | direct on three views) into ``out_dir``,
+    replacing earlier demo outputs. ``time_budget`` of ``direct``: :data:`DEMO_TIME_BUDGET`
+    by default. Returns the report.
+    """
+    from geoscaler.arguments import method_options
+    from geoscaler.io import check_output, prepare_folder, save_mesh, save_png
+    from geoscaler.job import prepare
+    from geoscaler.procedural import demo_mesh
+    from geoscaler.protocol import GAIN_REFERENCE
+    from geoscaler.render import Renderer
+    from geoscaler.report import comparison_picture
+
+    out_dir = prepare_folder(out_dir)
+    mesh_path = out_dir / DEMO_MESH_NAME
+    if mesh_path.exists():
+        say(f"using the demo asset {mesh_path}")
+    else:
+        say(f"building the demo asset into {mesh_path}")
+        save_mesh(demo_mesh(), mesh_path)
+    stem = f"{mesh_path.stem}_x{DEMO_SCALE}"
+    picture = check_output(out_dir / "demo_comparison.png", force=True, inputs=[mesh_path])
+    budget = DEMO_TIME_BUDGET if time_budget is None else time_budget
+    steps = DEMO_STEPS if steps is None else steps
+    settings = {"optimize": dict(optimize)} if optimize else {}
+    options = method_options(["direct"], device, 0, steps, budget, settings)
+    job = prepare(
+        mesh_path,
+        out_dir / f"{stem}.glb",
+        DEMO_SCALE,
+        "direct",
+        options,
+        force=True,
+        report=out_dir / f"{stem}.json",
+    )
+    done, document = downsample_and_report(job, evaluation, progress=progress, say=say)
+    sheet = comparison_picture(
+        job.mesh,
+        done.comparison,
+        DEMO_SCALE,
+        [GAIN_REFERENCE, "direct"],
+        renderer=Renderer(job.mesh, device, evaluation),
+    )
+    save_png(picture, sheet)
+    say(f"wrote {picture}: original | bicubic | direct on three views, zoom and error heatmap")
+    return document
 
 
 def cmd_demo(args: argparse.Namespace) -> None:
-    from geoscaler.downsample import demo
-
-    demo(args.out, args.device)
+    demo(args.out, args.device, evaluation=args.evaluation, optimize=args.optimize)
 
 
 def cmd_view(args: argparse.Namespace) -> None:
@@ -138,9 +259,53 @@ def cmd_view(args: argparse.Namespace) -> None:
 
 
 def cmd_compare(args: argparse.Namespace) -> None:
-    from geoscaler.compare import command
+    """``geoscaler compare``: compare methods on one mesh, print a table or JSON, write files."""
+    from tqdm import tqdm
 
-    command(args)
+    from geoscaler.arguments import comparison_settings
+    from geoscaler.console import CompareProgress
+    from geoscaler.io import load_mesh, save_png, write_atomically
+    from geoscaler.job import compare_mesh, prepare_out_dir
+    from geoscaler.render import Renderer
+    from geoscaler.report import (
+        comparison_json,
+        comparison_picture,
+        describe_device,
+        dumps,
+        format_table,
+    )
+
+    scales, methods, distances, options = comparison_settings(args)
+    mesh_path = Path(args.mesh)
+    json_name = f"{mesh_path.stem}_compare.json"
+    pictures = {scale: f"{mesh_path.stem}_compare_x{scale}.png" for scale in scales}
+    if args.out:
+        prepare_out_dir(args.out, [json_name, *pictures.values()], args.force, [mesh_path])
+    mesh = load_mesh(mesh_path)
+    renderer = Renderer(mesh, options.device, args.evaluation)
+    with tqdm(desc=mesh_path.name, unit="step", leave=False) as bar:
+        comparison = compare_mesh(
+            mesh, scales, methods, distances, options, renderer, CompareProgress(bar)
+        )
+    document = comparison_json(mesh_path, comparison)
+    document["device"] = describe_device(comparison.device)
+    text = dumps(document)
+    if args.json:
+        print(text)
+    else:
+        print(f"mesh {mesh_path}   protocol {PROTOCOL}   device {document['device']}")
+        print(format_table(comparison.rows))
+    if args.out:
+        out = Path(args.out)
+        write_atomically(out / json_name, lambda tmp: tmp.write_text(text + "\n"))
+        written = [out / json_name]
+        for scale, name in pictures.items():
+            picture = comparison_picture(
+                mesh, comparison, scale, methods, distances[0], renderer=renderer
+            )
+            written.append(save_png(out / name, picture))
+        for path in written:
+            print(f"wrote {path}", file=sys.stderr if args.json else sys.stdout)
 
 
 def cmd_bench(args: argparse.Namespace) -> None:
@@ -328,8 +493,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(
+    argv: list[str] | None = None,
+    *,
+    evaluation: Evaluation = PROTOCOL_EVALUATION,
+    optimize: dict | None = None,
+) -> int:
+    """Run the command line; returns the exit status.
+
+    ``evaluation`` and ``optimize`` are for callers that are not users (tests, quick checks):
+    fewer or smaller views, and overrides of the learned methods' loop settings. The command
+    line itself always runs protocol 1 with each method's own settings.
+    """
     args = build_parser().parse_args(argv)
+    args.evaluation, args.optimize = evaluation, optimize
     try:
         args.run(args)
     except GeoscalerError as error:

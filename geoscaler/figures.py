@@ -1,7 +1,7 @@
 """Pictures for people: method comparison sheets and the quality/memory trade-off plot.
 
 Everything here is drawn with numpy and Pillow (no plotting library); inputs are plain arrays,
-outputs ``(H, W, 3)`` uint8 RGB images ready for :func:`geoscaler.files.save_png`.
+outputs ``(H, W, 3)`` uint8 RGB images ready for :func:`geoscaler.io.save_png`.
 """
 
 from __future__ import annotations

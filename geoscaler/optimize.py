@@ -8,8 +8,10 @@ warm-up and cosine decay. Every ``validate_every`` steps it scores the candidate
 validation set Q and keeps the best state. It stops at a step count, a wall-clock budget or a
 plateau, and reports progress events that the CLI's progress bar and the desktop app consume.
 
-Training views are cached once (a :class:`~geoscaler.evaluate.ViewSet`, plus the texture taps
-for models that keep the mesh's UVs), so a step costs only texel gathers and their gradients.
+Training views are cached once (a :class:`~geoscaler.views.ViewCache`: G-buffers, references
+and, for models that keep the mesh's UVs, texture taps), so a step costs only texel gathers and
+their gradients. :func:`optimize` is three parts: :func:`cache_training_views`,
+:func:`train_step` and :func:`validate`.
 """
 
 from __future__ import annotations
@@ -23,31 +25,16 @@ from typing import Protocol
 
 import torch
 
-from geoscaler.cameras import (
-    VALIDATION_VIEWS,
-    Camera,
-    sample_training_cameras,
-    validation_cameras,
-)
-from geoscaler.evaluate import ViewSet
+from geoscaler.cameras import Camera, sample_training_cameras
 from geoscaler.metrics import SSIMLoss, psnr_fg
-from geoscaler.raster import GBuffer
 from geoscaler.render import Renderer
-from geoscaler.texture import (
-    MipLayout,
-    MipTexture,
-    UVFootprint,
-    build_mip_chain,
-    linear_to_srgb,
-    quantize_linear,
-    scatter_add,
-    take,
-)
+from geoscaler.texture import build_mip_chain, quantize_linear
+from geoscaler.views import ViewCache, ViewSet
 
-# Training distances: wider than range S on both sides so the texture holds up from the near
-# robustness set (1.5, magnified texels) to the far one (4.0, where coarser mip levels of the
-# candidate are shown). See the README's "training range" note.
-TRAINING_DISTANCES = (1.5, 4.2)
+TRAINING_RANGE = (1.5, 4.2)
+"""The loop's default training distances: wider than the protocol's range S on both sides, so
+the texture holds up from the near robustness set (1.5, magnified texels) to the far one (4.0,
+where coarser mip levels of the candidate are shown). See the README's "training range" note."""
 # Under a time budget, the training pool stops growing once this share of it is spent.
 CACHING_SHARE = 0.4
 
@@ -89,7 +76,7 @@ class OptimizeConfig:
     time_budget: float | None = None
     views_per_step: int = 4
     pool_views: int = 48
-    distances: tuple[float, float] = TRAINING_DISTANCES
+    distances: tuple[float, float] = TRAINING_RANGE
     lr: float = 0.02
     weight_decay: float = 0.0
     warmup_steps: int = 10
@@ -161,121 +148,6 @@ class Controller:
 
 
 @dataclass
-class PixelTaps:
-    """A view's texture lookups for one material, folded into its pixels.
-
-    With fixed UVs a rendered pixel (before sRGB encoding) is a fixed weighted sum of texels of
-    the candidate's mip chain: its samples' trilinear taps, each weighted 1 / samples per
-    pixel. Taps of zero weight (the unused level of a magnified sample) are dropped.
-
-    Attributes:
-        pixel: ``(T,)`` int32 flat pixel index of each tap.
-        texel: ``(T,)`` int32 index into the flat mip chain.
-        weight: ``(T,)`` float32.
-    """
-
-    pixel: torch.Tensor
-    texel: torch.Tensor
-    weight: torch.Tensor
-
-
-class ViewCache:
-    """A :class:`ViewSet` plus, for models that keep the mesh's UVs, every view's texture taps
-    for candidate textures of fixed sizes, so a render is one gather per material.
-
-    Args:
-        views: cached G-buffers and reference renders.
-        sizes: per material the candidate's texture ``(h, w)`` (None: untextured).
-        with_taps: cache the taps (valid only while the UVs stay the mesh's own).
-    """
-
-    def __init__(self, views: ViewSet, sizes: Sequence[tuple[int, int] | None], with_taps: bool):
-        self.views = views
-        self.renderer = views.renderer
-        device = self.renderer.device
-        self.layouts = [None if s is None else MipLayout(*s, device) for s in sizes]
-        self.taps: list[list[PixelTaps | None]] | None = None
-        self.untextured: list[torch.Tensor] | None = None
-        if with_taps:
-            with torch.no_grad():
-                self.taps = [self._taps(gbuffer) for gbuffer in views.gbuffers]
-                self.untextured = [self._untextured(gbuffer) for gbuffer in views.gbuffers]
-
-    def __len__(self) -> int:
-        return len(self.views)
-
-    def _taps(self, gbuffer: GBuffer) -> list[PixelTaps | None]:
-        footprint = self.renderer.footprint(gbuffer)
-        material = self.renderer.face_material.index_select(0, gbuffer.tri_ids)
-        pixel_of_sample = self.renderer.pixel_of_sample(gbuffer)
-        share = 1.0 / self.renderer.supersample**2
-        taps: list[PixelTaps | None] = []
-        for index, layout in enumerate(self.layouts):
-            samples = torch.nonzero(material == index).squeeze(1)
-            if layout is None or len(samples) == 0:
-                taps.append(None)
-                continue
-            part = UVFootprint(*(t[samples] for t in footprint))
-            texel, weight = layout.taps(part)  # (8, n), sample-major after the transpose
-            pixel = pixel_of_sample[samples].expand(len(texel), -1)
-            keep = weight.T != 0
-            taps.append(
-                PixelTaps(
-                    pixel.T[keep].to(torch.int32),
-                    texel.T[keep].to(torch.int32),
-                    weight.T[keep] * share,
-                )
-            )
-        return taps
-
-    def _untextured(self, gbuffer: GBuffer) -> torch.Tensor:
-        """``(3, pixels)`` linear colour contributed by samples of untextured materials."""
-        material = self.renderer.face_material.index_select(0, gbuffer.tri_ids)
-        plain = torch.tensor([layout is None for layout in self.layouts], device=material.device)
-        hit = torch.nonzero(plain[material]).squeeze(1)
-        colours = self.renderer.factors.T.index_select(1, material[hit])
-        image = colours.new_zeros(3, self.renderer.image_size**2)
-        pixels = self.renderer.pixel_of_sample(gbuffer)[hit]
-        return image.index_add(1, pixels, colours, alpha=1.0 / self.renderer.supersample**2)
-
-    def render(
-        self, view: int, textures: Sequence[torch.Tensor | None], uvs: torch.Tensor | None
-    ) -> torch.Tensor:
-        """``(H, W, 3)`` sRGB render of a candidate in cached view ``view`` (differentiable)."""
-        gbuffer = self.views.gbuffers[view]
-        if uvs is not None or self.taps is None or self.untextured is None:
-            mips = [None if t is None else MipTexture(t) for t in textures]
-            return self.renderer.render(gbuffer, mips, uvs)
-        image = self.untextured[view]
-        for index, (texture, taps) in enumerate(zip(textures, self.taps[view], strict=True)):
-            if texture is None or taps is None:
-                continue
-            texels = take(MipTexture(texture).texels, taps.texel) * taps.weight
-            lit = scatter_add(image.shape[1], taps.pixel, texels)
-            image = image + self.renderer.factors[index][:, None] * lit
-        side = self.renderer.image_size
-        return linear_to_srgb(image.T.reshape(side, side, 3))
-
-    def loss(
-        self,
-        view: int,
-        textures: Sequence[torch.Tensor | None],
-        uvs: torch.Tensor | None,
-        ssim_weight: float,
-        perceptual: PerceptualTerm | None = None,
-    ) -> torch.Tensor:
-        """:func:`rendering_loss` of a candidate in cached view ``view``."""
-        image = self.render(view, textures, uvs)
-        return rendering_loss(
-            image,
-            self.views.references[view],
-            self.views.foreground[view],
-            ssim_weight,
-            perceptual,
-        )
-
-
-@dataclass
 class PerceptualTerm:
     """``weight * loss(image, reference)`` on the object's crop of two ``(H, W, 3)`` images."""
 
@@ -329,13 +201,115 @@ class OptimizeResult:
     history: list[dict] = field(default_factory=list)
 
 
+def view_loss(
+    cache: ViewCache,
+    view: int,
+    textures: Sequence[torch.Tensor | None],
+    uvs: torch.Tensor | None,
+    ssim_weight: float,
+    perceptual: PerceptualTerm | None = None,
+) -> torch.Tensor:
+    """:func:`rendering_loss` of a candidate in the cached view ``view``."""
+    image = cache.render(view, textures, uvs)
+    views = cache.views
+    return rendering_loss(
+        image, views.references[view], views.foreground[view], ssim_weight, perceptual
+    )
+
+
+def cache_training_views(
+    renderer: Renderer,
+    sizes: Sequence[tuple[int, int] | None],
+    config: OptimizeConfig,
+    keeps_uvs: bool,
+    cameras: Sequence[Camera] | None = None,
+    start: float | None = None,
+    emit: Callable[[ProgressEvent], None] | None = None,
+) -> tuple[ViewCache, list[torch.Tensor | None]]:
+    """The training pool, and per material the ``(h, w)`` bool texels its views read.
+
+    Args:
+        renderer: the mesh's renderer.
+        sizes: per material the candidate's texture ``(h, w)`` (None: untextured).
+        config: the pool's size and distances, the seed, the time budget.
+        keeps_uvs: cache texture taps (and find the texels read) for the mesh's own UVs.
+        cameras: the views to cache (default: ``config.pool_views`` drawn from
+            ``config.distances``).
+        start: the ``time.perf_counter()`` the time budget counts from; under a budget the
+            pool stops growing once :data:`CACHING_SHARE` of it is spent (at least
+            ``config.views_per_step`` views are cached).
+        emit: receives ``"caching"`` events.
+    """
+    start = time.perf_counter() if start is None else start
+    cameras = cameras or sample_training_cameras(config.pool_views, config.seed, config.distances)
+
+    def report(done: int, total: int) -> None:
+        if emit:
+            elapsed = time.perf_counter() - start
+            emit(ProgressEvent("caching", 0, config.steps, elapsed, done=done, total=total))
+
+    deadline = None
+    if config.time_budget is not None:  # leave most of the budget to the optimisation itself
+        deadline = start + CACHING_SHARE * config.time_budget
+    pool = ViewSet(renderer, cameras, report, deadline, config.views_per_step)
+    train = ViewCache(pool, sizes, keeps_uvs)
+    # Texels no training view reads, filled from the charts at the end (found now: this
+    # depends only on the taps, and the end of a budgeted run has no time to spare).
+    seen = [seen_texels(train, i) if keeps_uvs and s else None for i, s in enumerate(sizes)]
+    return train, seen
+
+
+def train_step(
+    train: ViewCache,
+    model: Model,
+    optimizer: torch.optim.Optimizer,
+    views: Sequence[int],
+    config: OptimizeConfig,
+    lr_factor: Callable[[], float],
+    perceptual: PerceptualTerm | None = None,
+) -> float:
+    """One step on the mean loss of the training ``views``; returns the loss.
+
+    ``lr_factor()`` is read after the backward pass (so that a budgeted schedule sees the time
+    the step took) and scales ``config.lr`` for this step.
+    """
+    optimizer.zero_grad(set_to_none=True)
+    textures, uvs = model.candidate()
+    losses = [view_loss(train, i, textures, uvs, config.ssim_weight, perceptual) for i in views]
+    loss = torch.stack(losses).mean()
+    loss.backward()
+    factor = lr_factor()
+    for group in optimizer.param_groups:
+        group["lr"] = config.lr * factor
+    optimizer.step()
+    model.project()
+    return loss.item()
+
+
+@torch.no_grad()
+def validate(cache: ViewCache, model: Model) -> float:
+    """Mean PSNR-fg of the 8-bit-quantised candidate over the cached validation views."""
+    textures, uvs = model.candidate()
+    shipped = [None if t is None else quantize_linear(t) for t in textures]
+    views = cache.views
+    values = [
+        psnr_fg(
+            cache.render(i, shipped, uvs)[None],
+            views.references[i : i + 1],
+            views.foreground[i : i + 1],
+        )
+        for i in range(len(views))
+    ]
+    return float(torch.cat(values).mean())
+
+
 def optimize(
     renderer: Renderer,
     model: Model,
     config: OptimizeConfig,
+    validation: ViewCache,
     on_event: Callable[[ProgressEvent], None] | None = None,
     controller: Controller | None = None,
-    validation: ViewSet | None = None,
     keeps_uvs: bool = True,
     perceptual: PerceptualTerm | None = None,
     training_cameras: Sequence[Camera] | None = None,
@@ -347,9 +321,9 @@ def optimize(
         renderer: the mesh's renderer (its device is the device of the run).
         model: the candidate's parameters.
         config: loop settings.
+        validation: the cached validation views (Q), with taps for the candidate's sizes.
         on_event: receives :class:`ProgressEvent` reports.
         controller: lets another thread pause, resume or stop the loop.
-        validation: cached validation views (default: built here for the protocol's set Q).
         keeps_uvs: the model never changes UVs, so texture taps can be cached.
         perceptual: an extra loss term (the network's VGG-19 term).
         training_cameras: the views to train on (default: ``config.pool_views`` cameras drawn
@@ -366,35 +340,12 @@ def optimize(
     emit = on_event or (lambda event: None)
     textures, _ = model.candidate()
     sizes = [None if t is None else tuple(t.shape[:2]) for t in textures]
-    train_cameras = training_cameras or sample_training_cameras(
-        config.pool_views, config.seed, config.distances
+    train, seen = cache_training_views(
+        renderer, sizes, config, keeps_uvs, training_cameras, start, emit
     )
-    total = len(train_cameras) + (0 if validation is not None else VALIDATION_VIEWS)
-
-    def caching(offset: int):
-        def report(done: int, _: int) -> None:
-            elapsed = time.perf_counter() - start
-            emit(
-                ProgressEvent("caching", 0, config.steps, elapsed, done=offset + done, total=total)
-            )
-
-        return report
-
-    if validation is None:
-        validation = ViewSet(renderer, validation_cameras(), caching(0))
-    val = ViewCache(validation, sizes, keeps_uvs)
-    deadline = None
-    if config.time_budget is not None:  # leave most of the budget to the optimisation itself
-        deadline = start + CACHING_SHARE * config.time_budget
-    offset = total - len(train_cameras)
-    pool = ViewSet(renderer, train_cameras, caching(offset), deadline, config.views_per_step)
-    train = ViewCache(pool, sizes, keeps_uvs)
-    # Texels no training view reads, filled from the charts at the end (found now: this
-    # depends only on the taps, and the end of a budgeted run has no time to spare).
-    seen = [seen_texels(train, i) if keeps_uvs and s else None for i, s in enumerate(sizes)]
-
-    parameters = list(model.parameters())
-    optimizer = torch.optim.AdamW(parameters, lr=config.lr, weight_decay=config.weight_decay)
+    optimizer = torch.optim.AdamW(
+        list(model.parameters()), lr=config.lr, weight_decay=config.weight_decay
+    )
     generator = torch.Generator().manual_seed(config.seed)
 
     def candidate() -> tuple[list[torch.Tensor | None], torch.Tensor | None]:
@@ -405,7 +356,7 @@ def optimize(
 
     best = _Best()
     validation_start = time.perf_counter()
-    best.offer(_validate(val, model), 0, model)  # the start is a candidate too
+    best.offer(validate(validation, model), 0, model)  # the start is a candidate too
     # A run under a budget stops early enough for one more step and the final validation (with
     # half a validation's time to spare: on a busy machine one takes longer than the next).
     reserve = 1.5 * (time.perf_counter() - validation_start)
@@ -427,22 +378,19 @@ def optimize(
             stopped_by = "time budget"
             break
         views = torch.randperm(len(train), generator=generator)[: config.views_per_step]
-        optimizer.zero_grad(set_to_none=True)
-        textures, uvs = model.candidate()
-        losses = [
-            train.loss(i, textures, uvs, config.ssim_weight, perceptual) for i in views.tolist()
-        ]
-        loss = torch.stack(losses).mean()
-        loss.backward()
-        for group in optimizer.param_groups:
-            group["lr"] = config.lr * _learning_rate_factor(
-                step, _time_spent(time.perf_counter(), start, loop_start, config), config
-            )
-        optimizer.step()
-        model.project()
+        loss_value = train_step(
+            train,
+            model,
+            optimizer,
+            views.tolist(),
+            config,
+            lambda at=step: _learning_rate_factor(
+                at, _time_spent(time.perf_counter(), start, loop_start, config), config
+            ),
+            perceptual,
+        )
         step += 1
         step_seconds = time.perf_counter() - step_start
-        loss_value = loss.item()
         elapsed = time.perf_counter() - start
         emit(
             ProgressEvent(
@@ -457,7 +405,7 @@ def optimize(
         )
         history.append({"step": step, "loss": loss_value, "elapsed": elapsed})
         if step % config.validate_every == 0 or step == config.steps:
-            psnr = _validate(val, model)
+            psnr = validate(validation, model)
             validated_step = step
             improved = best.offer(psnr, step, model)
             history[-1]["validation_psnr_fg"] = psnr
@@ -478,7 +426,7 @@ def optimize(
                 break
 
     if validated_step != step:  # stopped between validations: the current state may be better
-        best.offer(_validate(val, model), step, model)
+        best.offer(validate(validation, model), step, model)
     best.textures = [
         t if t is None or mask is None else fill_unseen(t, mask)
         for t, mask in zip(best.textures, seen, strict=True)
@@ -487,23 +435,6 @@ def optimize(
     emit(ProgressEvent("done", step, config.steps, seconds, loss_value, None, best.psnr))
     return OptimizeResult(
         best.textures, best.uvs, step, best.step, best.psnr, stopped_by, seconds, history
-    )
-
-
-def optimize_method(
-    renderer: Renderer, model: Model, config: OptimizeConfig, options, **settings
-) -> OptimizeResult:
-    """:func:`optimize` with what a method's :class:`~geoscaler.methods.MethodOptions` carry:
-    its progress callback, its controller and its cached validation views. ``settings``: the
-    other keyword arguments of :func:`optimize`."""
-    return optimize(
-        renderer,
-        model,
-        config,
-        on_event=options.on_event,
-        controller=options.extra.get("controller"),
-        validation=options.extra.get("validation_views"),
-        **settings,
     )
 
 
@@ -528,23 +459,6 @@ def _learning_rate_factor(step: int, time_spent: float, config: OptimizeConfig) 
     span = max(config.steps - config.warmup_steps, 1)
     progress = max((step - config.warmup_steps) / span, time_spent)
     return 0.5 * (1 + math.cos(math.pi * min(progress, 1.0)))
-
-
-@torch.no_grad()
-def _validate(cache: ViewCache, model: Model) -> float:
-    """Mean PSNR-fg of the 8-bit-quantised candidate over the cached validation views."""
-    textures, uvs = model.candidate()
-    shipped = [None if t is None else quantize_linear(t) for t in textures]
-    views = cache.views
-    values = [
-        psnr_fg(
-            cache.render(i, shipped, uvs)[None],
-            views.references[i : i + 1],
-            views.foreground[i : i + 1],
-        )
-        for i in range(len(views))
-    ]
-    return float(torch.cat(values).mean())
 
 
 class _Best:

@@ -16,15 +16,13 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from geoscaler.baselines import reference_texture
 from geoscaler.cameras import Camera
 from geoscaler.errors import GeoscalerError
+from geoscaler.filters import reference_textures
 from geoscaler.mesh import TexturedMesh
+from geoscaler.protocol import PROTOCOL_EVALUATION, Evaluation
 from geoscaler.raster import GBuffer, rasterize
 from geoscaler.texture import MipTexture, UVFootprint, linear_to_srgb, texture_to_linear
-
-IMAGE_SIZE = 512
-SUPERSAMPLE = 2
 
 
 def resolve_device(name: str | torch.device | None = None) -> torch.device:
@@ -43,20 +41,19 @@ class Renderer:
     Args:
         mesh: the mesh; its geometry is fixed for the renderer's lifetime.
         device: where tensors live (None or "auto": CUDA when available).
-        image_size: output image side in pixels.
-        supersample: samples per pixel side (2 means 2 x 2 supersampling).
+        evaluation: image size and supersampling (default: protocol 1's).
     """
 
     def __init__(
         self,
         mesh: TexturedMesh,
         device: torch.device | str | None = None,
-        image_size: int = IMAGE_SIZE,
-        supersample: int = SUPERSAMPLE,
+        evaluation: Evaluation = PROTOCOL_EVALUATION,
     ):
         self.device = resolve_device(device)
-        self.image_size = image_size
-        self.supersample = supersample
+        self.evaluation = evaluation
+        self.image_size = evaluation.image_size
+        self.supersample = evaluation.supersample
         self.mesh = mesh
         to = {"device": self.device}
         self.positions = torch.from_numpy(mesh.normalized_positions()).to(**to)
@@ -71,18 +68,18 @@ class Renderer:
         """Samples per side of the G-buffer."""
         return self.image_size * self.supersample
 
-    def reference_textures(self) -> list[MipTexture | None]:
-        """Mip chains of the protocol's reference maps (None for untextured materials).
-
-        The reference is the mesh's own base-colour texture, reduced with Lanczos to 2048
-        texels on its longer side when it is larger (PROTOCOL.md).
-        """
+    def mip_textures(self, textures: Sequence[np.ndarray | None]) -> list[MipTexture | None]:
+        """Mip chains on this renderer's device of ``(h, w, C)`` uint8 sRGB textures, one per
+        material (None: untextured)."""
         return [
-            None
-            if m.base_color_texture is None
-            else MipTexture(texture_to_linear(reference_texture(m.base_color_texture), self.device))
-            for m in self.mesh.materials
+            None if texture is None else MipTexture(texture_to_linear(texture, self.device))
+            for texture in textures
         ]
+
+    def reference_textures(self) -> list[MipTexture | None]:
+        """Mip chains of the protocol's reference maps
+        (:func:`geoscaler.filters.reference_textures`; None for untextured materials)."""
+        return self.mip_textures(reference_textures(self.mesh))
 
     def rasterize(self, camera: Camera) -> GBuffer:
         """The G-buffer of one camera at ``resolution x resolution`` samples."""

@@ -32,14 +32,33 @@ def linear_to_srgb(x: torch.Tensor) -> torch.Tensor:
     )
 
 
-def texture_to_linear(texture: np.ndarray, device: torch.device | str = "cpu") -> torch.Tensor:
-    """``(H, W, C)`` uint8 sRGB texture to ``(H, W, 3)`` float32 linear RGB (alpha dropped).
+def to_rgb(texture: np.ndarray) -> np.ndarray:
+    """The colour channels of a texture, grey broadcast to RGB and alpha dropped.
 
-    Grayscale textures (C = 1 or 2) are broadcast to RGB.
+    The one grey-to-RGB rule of the project: grey (and grey+alpha) repeats its grey channel
+    into R, G and B.
+
+    Parameters
+    ----------
+    texture : (H, W) or (H, W, C) array
+        ``C`` in 1..4: grey, grey+alpha, RGB or RGBA; any dtype.
+
+    Returns
+    -------
+    (H, W, 3) array of the same dtype
+        A view of ``texture`` when ``C >= 3``, a new array for grey.
     """
     if texture.ndim == 2:
         texture = texture[..., None]
-    rgb = texture[..., :3] if texture.shape[2] >= 3 else np.repeat(texture[..., :1], 3, axis=2)
+    return texture[..., :3] if texture.shape[2] >= 3 else np.repeat(texture[..., :1], 3, axis=2)
+
+
+def texture_to_linear(texture: np.ndarray, device: torch.device | str = "cpu") -> torch.Tensor:
+    """``(H, W, C)`` uint8 sRGB texture to ``(H, W, 3)`` float32 linear RGB (alpha dropped).
+
+    Grayscale textures (C = 1 or 2) are broadcast to RGB (:func:`to_rgb`).
+    """
+    rgb = to_rgb(texture)
     values = torch.from_numpy(np.array(rgb, copy=True)).to(device=device, dtype=torch.float32)
     return srgb_to_linear(values / 255.0)
 

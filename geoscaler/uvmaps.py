@@ -1,12 +1,27 @@
-"""UV-space views of a mesh: chart structure and how much of the texture the charts use."""
+"""UV-space views of a mesh: chart structure, how much of the texture the charts use, and what
+the GeoScaler network reads of the mesh besides its texture.
+
+* Charts and coverage: UV-connected faces, and the share of texels the charts cover.
+* Geometry maps: the normalised 3D position and normal of the surface point under every texel
+  centre, rasterised into UV space, so convolutions over the texture see the geometry.
+* The vertex graph: the mesh's 3D points (vertices welded across UV seams) joined by the edges
+  of its faces, weighted by their Euclidean length, on which GeoCoding filters.
+* UV rasters: for every texel centre of a texture, the face covering it and its barycentrics,
+  to interpolate per-vertex values over the faces back onto the texture plane.
+
+Only square textures are handled by the network's maps (the rasteriser's grid is square).
+"""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import TexturedMesh
 from geoscaler.raster import GBuffer, rasterize
 
@@ -64,3 +79,165 @@ def uv_coverage(mesh: TexturedMesh, material: int = 0, resolution: int = 512) ->
     """Fraction of the texture's area covered by at least one face of ``material``."""
     gbuffer = rasterize_uv(mesh, resolution, material)
     return gbuffer.num_samples / resolution**2
+
+
+# Channels of the network input: sRGB texture, position, normal, coverage mask.
+INPUT_CHANNELS = 10
+
+
+@dataclass
+class UVRaster:
+    """The faces of one material rasterised over a ``size x size`` texel grid.
+
+    Attributes:
+        size: texels per side.
+        texels: ``(N,)`` int64 flat index ``row * size + col`` of each covered texel centre
+            (row 0 is the top of the texture).
+        corners: ``(N, 3)`` int64 mesh vertex index of each corner of the covering face.
+        weights: ``(N, 3)`` float32 barycentric weight of each corner.
+    """
+
+    size: int
+    texels: torch.Tensor
+    corners: torch.Tensor
+    weights: torch.Tensor
+
+    def interpolate(self, corner_values: torch.Tensor) -> torch.Tensor:
+        """Interpolate per-vertex values over the faces into the texture plane.
+
+        Args:
+            corner_values: ``(V, C)`` one row per mesh vertex (or per point after indexing).
+
+        Returns:
+            ``(C, size, size)``, zero at texels no face covers.
+        """
+        corners = corner_values.index_select(0, self.corners.view(-1))
+        values = (corners.view(*self.corners.shape, -1) * self.weights[..., None]).sum(1)  # (N, C)
+        plane = corner_values.new_zeros(self.size * self.size, corner_values.shape[1])
+        plane = plane.index_copy(0, self.texels, values)
+        return plane.T.reshape(-1, self.size, self.size)
+
+
+def uv_raster(
+    mesh: TexturedMesh, material: int, size: int, device: torch.device | str = "cpu"
+) -> UVRaster:
+    """Rasterise the faces of ``material`` over a ``size x size`` texel grid."""
+    faces = torch.from_numpy(np.asarray(mesh.faces[mesh.face_material == material], np.int64))
+    gbuffer = rasterize_uv(mesh, size, material)
+    weights, _, _ = gbuffer.barycentrics()
+    tri_ids = gbuffer.tri_ids.long()
+    return UVRaster(
+        size,
+        gbuffer.pixels.long().to(device),
+        faces[tri_ids].to(device),
+        weights.T.contiguous().to(device),
+    )
+
+
+def geometry_maps(raster: UVRaster, mesh: TexturedMesh) -> torch.Tensor:
+    """``(7, size, size)`` position (3), unit normal (3) and coverage (1) under each texel.
+
+    Positions are in the protocol's unit scene; uncovered texels are zero in every channel.
+    """
+    device = raster.texels.device
+    positions = torch.from_numpy(mesh.normalized_positions()).to(device)
+    normals = torch.from_numpy(np.asarray(mesh.normals, np.float32)).to(device)
+    maps = raster.interpolate(torch.cat([positions, normals], dim=1))
+    maps[3:6] = maps[3:6] / maps[3:6].norm(dim=0, keepdim=True).clamp_min(1e-12)
+    coverage = torch.zeros(raster.size * raster.size, device=device)
+    coverage[raster.texels] = 1.0
+    return torch.cat([maps, coverage.view(1, raster.size, raster.size)])
+
+
+def check_square(mesh: TexturedMesh) -> None:
+    """Raise a clear error for non-square textures, which the network does not handle."""
+    for material in mesh.materials:
+        texture = material.base_color_texture
+        if texture is not None and texture.shape[0] != texture.shape[1]:
+            raise GeoscalerError(
+                f"material {material.name!r}: texture is {texture.shape[1]}x{texture.shape[0]}; "
+                "the geoscaler network handles square textures only: use --method direct"
+            )
+
+
+@dataclass
+class MeshGraph:
+    """The mesh's points and edges, and how its (UV-split) vertices map onto the points.
+
+    Attributes:
+        vertex_to_point: ``(V,)`` int64 point of every mesh vertex.
+        vertex_used: ``(V,)`` bool, the vertex is a corner of some face.
+        num_points: ``P``.
+        sources, targets: ``(E,)`` int64 directed edges ``j -> i`` (both directions stored).
+        lengths: ``(E,)`` float32 Euclidean length ``e_ij`` in the protocol's unit scene.
+    """
+
+    vertex_to_point: torch.Tensor
+    vertex_used: torch.Tensor
+    num_points: int
+    sources: torch.Tensor
+    targets: torch.Tensor
+    lengths: torch.Tensor
+
+    def neighbour_sum(self, features: torch.Tensor) -> torch.Tensor:
+        """``(P, C)``: ``sum_{j in N(i)} e_ij f_j`` for every point ``i`` (0 when isolated)."""
+        messages = features.index_select(0, self.sources) * self.lengths[:, None]
+        return features.new_zeros(features.shape).index_add(0, self.targets, messages)
+
+    def pool_vertices(self, vertex_features: torch.Tensor) -> torch.Tensor:
+        """``(P, C)`` mean over the used vertices of each point of ``(V, C)`` features.
+
+        A point that appears at several UV positions (a seam) averages its samples; a point
+        with no used vertex gets zeros.
+        """
+        used = self.vertex_used.to(vertex_features.dtype)[:, None]
+        sums = vertex_features.new_zeros(self.num_points, vertex_features.shape[1])
+        sums = sums.index_add(0, self.vertex_to_point, vertex_features * used)
+        counts = used.new_zeros(self.num_points, 1).index_add(0, self.vertex_to_point, used)
+        return sums / counts.clamp_min(1)
+
+
+def mesh_graph(mesh: TexturedMesh, device: torch.device | str = "cpu") -> MeshGraph:
+    """The graph GeoCoding filters on: welded points, face edges, Euclidean edge lengths.
+
+    Meshes stored with one vertex per face corner are welded through ``vertex_to_point``;
+    degenerate edges (both ends on one point) and repeated edges are dropped.
+    """
+    vertex_to_point = np.asarray(mesh.vertex_to_point, np.int64)
+    num_points = int(vertex_to_point.max()) + 1 if len(vertex_to_point) else 0
+    corners = vertex_to_point[np.asarray(mesh.faces, np.int64)]  # (F, 3) points
+    pairs = np.concatenate([corners[:, [0, 1]], corners[:, [1, 2]], corners[:, [2, 0]]])
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    pairs = np.unique(np.sort(pairs, axis=1), axis=0)
+    directed = np.concatenate([pairs, pairs[:, ::-1]])
+    positions = mesh.normalized_positions().astype(np.float64)
+    point_position = np.zeros((num_points, 3))
+    point_position[vertex_to_point] = positions
+    lengths = np.linalg.norm(
+        point_position[directed[:, 0]] - point_position[directed[:, 1]], axis=1
+    )
+    used = np.zeros(len(vertex_to_point), bool)
+    used[np.asarray(mesh.faces).reshape(-1)] = True
+
+    def tensor(array: np.ndarray, dtype: torch.dtype) -> torch.Tensor:
+        return torch.from_numpy(np.ascontiguousarray(array)).to(device=device, dtype=dtype)
+
+    return MeshGraph(
+        tensor(vertex_to_point, torch.int64),
+        tensor(used, torch.bool),
+        num_points,
+        tensor(directed[:, 0], torch.int64),
+        tensor(directed[:, 1], torch.int64),
+        tensor(lengths, torch.float32),
+    )
+
+
+def vertex_materials(mesh: TexturedMesh) -> np.ndarray:
+    """``(V,)`` int64 material of the first face using each vertex (-1 for unused ones)."""
+    faces = np.asarray(mesh.faces, np.int64)
+    first_face = np.full(len(mesh.uvs), len(faces), np.int64)
+    np.minimum.at(first_face, faces.reshape(-1), np.repeat(np.arange(len(faces)), 3))
+    used = first_face < len(faces)
+    materials = np.full(len(mesh.uvs), -1, np.int64)
+    materials[used] = np.asarray(mesh.face_material, np.int64)[first_face[used]]
+    return materials

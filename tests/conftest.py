@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from geoscaler.protocol import Evaluation
+
 DATA_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
@@ -29,25 +31,17 @@ def mesh_params():
     return [pytest.param(path, id=path.parent.name) for path in meshes]
 
 
-def small_renderer(mesh, device=None):
-    """A renderer with 128-pixel images: 16 times cheaper than the protocol's 512."""
+ONE_VIEW = Evaluation.quick((0,))
+"""What CLI runs in tests evaluate on: view 0 only, 128 pixels square (``main(...,
+evaluation=ONE_VIEW)``; the real command: 60 views, 512 pixels)."""
+
+
+def small_renderer(mesh, views=(0,), device=None):
+    """A renderer of protocol ``views`` at 128 pixels: the quick checks' evaluation (the
+    protocol renders all 60 views at 512 pixels, 16 times the pixels of each)."""
     from geoscaler.render import Renderer
 
-    return Renderer(mesh, device, image_size=128)
-
-
-@pytest.fixture
-def one_view(monkeypatch):
-    """CLI runs on view 0 only, 128 pixels square (the real command: 60 views, 512 pixels)."""
-    from geoscaler import compare
-    from geoscaler.cameras import validation_cameras
-
-    def cameras(distance, views=None):
-        all_views = validation_cameras(distance)
-        return [all_views[i] for i in views] if views is not None else all_views[:1]
-
-    monkeypatch.setattr(compare, "protocol_cameras", cameras)
-    monkeypatch.setattr(compare, "Renderer", small_renderer)
+    return Renderer(mesh, device, Evaluation.quick(views))
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

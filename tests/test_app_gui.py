@@ -20,7 +20,7 @@ import pytest
 from app_support import import_app_module, unavailable
 from PIL import Image
 
-from geoscaler.mesh import load_mesh
+from geoscaler.io import load_mesh
 from geoscaler.procedural import demo_mesh
 
 DOCS_SCREENSHOT = Path(__file__).resolve().parents[1] / "docs" / "app.png"
@@ -62,14 +62,14 @@ def gui_runner():
 def test_a_session_in_the_app(gui_runner, tmp_path):
     main, testing = gui_runner
     from geoscaler.app.training import TrainingSettings
+    from geoscaler.protocol import Evaluation
 
     settings = TrainingSettings(
         method="direct",
         scale=4,
         steps=400,
         time_budget=120.0,
-        views=2,
-        image_size=128,
+        evaluation=Evaluation(image_size=128, views=(0, 1)),
         optimize={"pool_views": 4, "validate_every": 5},
     )
     app = main.App(None, tmp_path / "out", settings, demo=lambda: demo_mesh(16, 512))
@@ -84,17 +84,17 @@ def test_a_session_in_the_app(gui_runner, tmp_path):
         seen["first label"] = app.session.candidate_label
 
         ctx.item_click("//Optimise/Start")
-        assert wait_until(ctx, lambda: app.state is not None and app.state.step >= 6, 90)
-        seen["steps"] = [app.state.step]
-        wait_until(ctx, lambda: app.state.step >= seen["steps"][0] + 2, 30)
-        seen["steps"].append(app.state.step)
+        assert wait_until(ctx, lambda: app.progress is not None and app.progress.step >= 6, 90)
+        seen["steps"] = [app.progress.step]
+        wait_until(ctx, lambda: app.progress.step >= seen["steps"][0] + 2, 30)
+        seen["steps"].append(app.progress.step)
         ctx.yield_(2)
         testing.capture(ctx, str(shots["training"]))
         seen["training label"] = app.session.candidate_label
 
         ctx.item_click("//Bookmarks/Bookmark this view")
         ctx.item_click("//Optimise/Stop")
-        assert wait_until(ctx, lambda: app.state.result is not None, 60)
+        assert wait_until(ctx, lambda: app.progress.result is not None, 60)
         ctx.yield_(2)
         ctx.item_click("//Bookmarks/view 1##0")
         ctx.item_click("//Bookmarks/A\\/B here")
@@ -114,7 +114,7 @@ def test_a_session_in_the_app(gui_runner, tmp_path):
         wait_until(ctx, lambda: app.loading is None, 10)
         frames = app.frames
         ctx.yield_(3)
-        seen["error"] = app.error
+        seen["error"] = app.state.error
         seen["frames after error"] = app.frames - frames
 
     (tmp_path / "broken.obj").write_text("this is not a mesh\nf 1 2 3\n")

@@ -13,9 +13,12 @@ import numpy as np
 import pytest
 from app_support import gl_context, import_app_module
 
-from geoscaler.cameras import VALIDATION_DISTANCE
 from geoscaler.errors import GeoscalerError
 from geoscaler.procedural import demo_mesh
+from geoscaler.protocol import VALIDATION_DISTANCE, Evaluation
+
+ONE_SMALL_VIEW = Evaluation(image_size=64, views=(0,))
+"""The worker's torch renders in these tests: view 0 at 64 pixels (the app's: protocol 1)."""
 
 
 @pytest.fixture(scope="module")
@@ -134,8 +137,7 @@ def finished_run(mesh, method: str, steps: int, validate_every: int):
         scale=4,
         steps=steps,
         time_budget=60.0,
-        views=1,
-        image_size=64,
+        evaluation=ONE_SMALL_VIEW,
         optimize={"pool_views": 2, "validate_every": validate_every},
     )
     run = training.Training(mesh, settings)
@@ -161,7 +163,10 @@ def test_training_runs_off_thread_and_reports(small_demo):
 def test_training_pauses_resumes_and_stops(small_demo):
     training = import_app_module("training")
     settings = training.TrainingSettings(
-        steps=10_000, time_budget=120.0, views=1, image_size=64, optimize={"pool_views": 2}
+        steps=10_000,
+        time_budget=120.0,
+        evaluation=ONE_SMALL_VIEW,
+        optimize={"pool_views": 2},
     )
     run = training.Training(small_demo, settings)
     run.start()
@@ -189,15 +194,16 @@ def test_bad_settings_are_refused_before_the_worker_starts(small_demo):
         training.Training(small_demo, training.TrainingSettings(method="bicubic", scale=512))
 
 
-def test_a_failing_method_reports_its_error(small_demo, monkeypatch):
-    from geoscaler import methods
+def test_a_failing_method_reports_its_error(small_demo, request):
+    from geoscaler.methods import registry
 
-    def broken(mesh, scale, options):
+    def broken(mesh, scale, options, context):
         raise RuntimeError("out of texels")
 
-    monkeypatch.setitem(methods.METHODS, "broken", broken)
+    registry.register("broken", broken, learned=True)
+    request.addfinalizer(lambda: registry.unregister("broken"))
     training = import_app_module("training")
-    settings = training.TrainingSettings(method="broken", views=1, image_size=64)
+    settings = training.TrainingSettings(method="broken", evaluation=ONE_SMALL_VIEW)
     run = training.Training(small_demo, settings)
     run.start()
     assert run.wait(timeout=60)
@@ -231,10 +237,16 @@ def test_the_uv_inspector_shows_the_warp_of_new_uvs(small_demo, tmp_path):
 
 
 def test_every_shader_is_shipped_with_the_package():
-    """setup.py installs shaders/*.vert and *.frag as geoscaler/shaders: nothing else is there."""
+    """setup.py installs shaders/*.vert and *.frag as package data of geoscaler.shaders: besides
+    the package's own ``__init__.py``, nothing else is there, and the app reads them from it."""
     gl_renderer = import_app_module("gl_renderer")
-    names = sorted(p.name for p in gl_renderer.SHADER_DIR.iterdir())
+    package = {"__init__.py", "__pycache__"}
+    names = sorted(p.name for p in gl_renderer.shader_files().iterdir() if p.name not in package)
     assert names and all(name.endswith((".vert", ".frag")) for name in names), names
+    for name in names:
+        assert gl_renderer.shader_source(name).startswith("#version"), name
+    with pytest.raises(GeoscalerError, match="not found"):
+        gl_renderer.shader_source("missing.frag")
 
 
 def test_the_live_candidate_carries_the_uvs_of_a_warping_method(small_demo):

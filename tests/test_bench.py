@@ -8,6 +8,7 @@ import math
 import shlex
 
 import pytest
+from conftest import ONE_VIEW
 from PIL import Image
 
 from geoscaler.bench import (
@@ -20,7 +21,7 @@ from geoscaler.bench import (
 )
 from geoscaler.cli import build_parser, main
 from geoscaler.errors import GeoscalerError
-from geoscaler.mesh import save_mesh
+from geoscaler.io import save_mesh
 from geoscaler.procedural import demo_mesh
 
 
@@ -69,10 +70,10 @@ def test_find_meshes_errors(tmp_path):
         find_meshes([tmp_path / "missing"])
 
 
-def test_bench_skips_a_corrupt_mesh_and_writes_results(data_dir, tmp_path, one_view, capsys):
+def test_bench_skips_a_corrupt_mesh_and_writes_results(data_dir, tmp_path, capsys):
     out = tmp_path / "results"
     argv = ["bench", str(data_dir), "--scale", "4", "8", "--methods", "box,bicubic"]
-    assert main([*argv, "--out", str(out), "--device", "cpu"]) == 0
+    assert main([*argv, "--out", str(out), "--device", "cpu"], evaluation=ONE_VIEW) == 0
     captured = capsys.readouterr()
     assert "skipped" in captured.err and "broken.glb" in captured.err
     assert "PSNR-fg (dB)" in captured.out and "good.glb" in captured.out
@@ -104,8 +105,9 @@ def test_bench_skips_a_corrupt_mesh_and_writes_results(data_dir, tmp_path, one_v
     assert Image.open(out / "tradeoff.png").size == (960, 600)
 
 
-def test_bench_json_to_stdout(good_glb, one_view, capsys):
-    assert main(["bench", str(good_glb), "--scale", "4", "--methods", "bicubic", "--json"]) == 0
+def test_bench_json_to_stdout(good_glb, capsys):
+    argv = ["bench", str(good_glb), "--scale", "4", "--methods", "bicubic", "--json"]
+    assert main(argv, evaluation=ONE_VIEW) == 0
     document = json.loads(capsys.readouterr().out)
     assert document["protocol"] == 1 and document["results"][0]["gain_db"] == 0.0
 
@@ -120,7 +122,7 @@ def test_bench_fails_when_no_mesh_can_be_read(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        (["--methods", "nope"], "unknown method 'nope'"),
+        (["--methods", "nope"], "'nope': unknown method"),
         (["--scale", "1"], "whole number >= 2"),
     ],
 )

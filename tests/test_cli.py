@@ -8,8 +8,7 @@ from PIL import Image
 
 from geoscaler.cli import main
 from geoscaler.errors import GeoscalerError
-from geoscaler.files import check_output, save_png, write_atomically
-from geoscaler.mesh import save_mesh
+from geoscaler.io import check_output, save_mesh, save_png, write_atomically
 from geoscaler.procedural import demo_mesh
 
 

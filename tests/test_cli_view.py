@@ -23,7 +23,8 @@ def test_view_of_a_missing_file_is_a_clear_error(tmp_path, capsys):
 def test_the_library_imports_without_the_app_or_a_display():
     code = (
         "import sys; sys.modules['moderngl'] = None; sys.modules['imgui_bundle'] = None\n"
-        "import geoscaler.cli, geoscaler.downsample, geoscaler.render\n"
+        "import geoscaler.cli, geoscaler.console, geoscaler.job, geoscaler.render\n"
+        "import geoscaler.report\n"
         "assert geoscaler.cli.main(['view']) == 2\n"
     )
     result = subprocess.run(

@@ -2,39 +2,44 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 
 import numpy as np
 import pytest
 import torch
-from conftest import small_renderer
+from conftest import ONE_VIEW, small_renderer
 from PIL import Image
 
 from geoscaler.cli import main
-from geoscaler.compare import (
-    BYTES_PER_TEXEL,
-    ROW_KEYS,
-    compare_mesh,
-    comparison_json,
-    comparison_picture,
-    dumps,
-    format_table,
-    pick_views,
-)
 from geoscaler.errors import GeoscalerError
 from geoscaler.figures import colormap
-from geoscaler.mesh import save_mesh
-from geoscaler.methods import METHODS, MethodResult, reference_textures
+from geoscaler.filters import reference_textures
+from geoscaler.io import save_mesh
+from geoscaler.job import ROW_KEYS, JobObserver, compare_mesh
+from geoscaler.methods import MethodOptions, MethodResult, get_method, registry
 from geoscaler.metrics import evaluate, ssim_fg, ssim_full
 from geoscaler.procedural import demo_mesh
+from geoscaler.protocol import BYTES_PER_TEXEL, Evaluation
+from geoscaler.report import comparison_json, comparison_picture, dumps, format_table, pick_views
 
-VIEWS = [0, 31]  # two protocol views keep the tests fast; the CLI always scores all 60
+VIEWS = (0, 31)  # two protocol views keep the tests fast; the CLI always scores all 60
 
 
-def reference_method(mesh, scale, options):
+def reference_method(mesh, scale, options, context):
     """A fake method that ships the reference map itself: renders identical to the original."""
     return MethodResult(reference_textures(mesh))
+
+
+@contextlib.contextmanager
+def registered(name, run, learned=False):
+    """Register the fake method ``name`` while the block runs."""
+    registry.register(name, run, learned=learned)
+    try:
+        yield
+    finally:
+        registry.unregister(name)
 
 
 @pytest.fixture(scope="module")
@@ -43,18 +48,11 @@ def mesh():
 
 
 @pytest.fixture(scope="module")
-def registered():
-    """Register the fake ``reference`` method for this module only."""
-    METHODS["reference"] = reference_method
-    yield
-    del METHODS["reference"]
-
-
-@pytest.fixture(scope="module")
-def comparison(mesh, registered):
-    return compare_mesh(
-        mesh, [4], ["bicubic", "box", "reference"], views=VIEWS, renderer=small_renderer(mesh)
-    )
+def comparison(mesh):
+    with registered("reference", reference_method):
+        return compare_mesh(
+            mesh, [4], ["bicubic", "box", "reference"], renderer=small_renderer(mesh, VIEWS)
+        )
 
 
 def by_method(rows):
@@ -102,7 +100,7 @@ def test_table_lists_each_row(comparison):
 
 
 def test_bicubic_runs_for_the_gain_but_is_only_shown_if_listed(mesh):
-    comparison = compare_mesh(mesh, [4], ["box"], views=[0], renderer=small_renderer(mesh))
+    comparison = compare_mesh(mesh, [4], ["box"], renderer=small_renderer(mesh))
     assert [row["method"] for row in comparison.rows] == ["box"]
     assert ("bicubic", 4) in comparison.outputs
     assert comparison.rows[0]["gain_db"] != 0.0
@@ -111,17 +109,14 @@ def test_bicubic_runs_for_the_gain_but_is_only_shown_if_listed(mesh):
 def test_each_method_runs_once_per_scale_whatever_the_distances(mesh):
     calls = []
 
-    def counting(mesh, scale, options):
+    def counting(mesh, scale, options, context):
         calls.append(scale)
-        return METHODS["box"](mesh, scale, options)
+        return get_method("box").run(mesh, scale, options, context)
 
-    METHODS["counting"] = counting
-    try:
+    with registered("counting", counting):
         comparison = compare_mesh(
-            mesh, [4, 8], ["counting"], [1.5, 4.0], views=[5], renderer=small_renderer(mesh)
+            mesh, [4, 8], ["counting"], [1.5, 4.0], renderer=small_renderer(mesh, (5,))
         )
-    finally:
-        del METHODS["counting"]
     assert calls == [4, 8]
     order = [(row["distance"], row["scale"]) for row in comparison.rows]
     assert order == [(1.5, 4), (1.5, 8), (4.0, 4), (4.0, 8)]
@@ -131,18 +126,25 @@ def test_each_method_runs_once_per_scale_whatever_the_distances(mesh):
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"methods": ["nope"]}, "unknown method 'nope'"),
+        ({"methods": ["nope"]}, "'nope': unknown method"),
         ({"scales": [1]}, "whole number >= 2"),
         ({"scales": [256]}, "larger than the 128 x 128 texture"),
         ({"distances": [0.5]}, "must be over 1"),
-        ({"views": [60]}, "view 60"),
     ],
 )
 def test_bad_arguments_raise_before_work(mesh, kwargs, message):
-    arguments = {"scales": [4], "methods": ["box"], "views": [0], **kwargs}
+    arguments = {"scales": [4], "methods": ["box"], **kwargs}
     arguments["renderer"] = small_renderer(mesh)
     with pytest.raises(GeoscalerError, match=message):
         compare_mesh(mesh, **arguments)
+
+
+@pytest.mark.parametrize("views", [(60,), (-1,), ()])
+def test_an_evaluation_refuses_views_outside_the_protocol(views):
+    """The views scored are the renderer's evaluation's: a bad index is refused when the
+    settings are made, before any renderer exists."""
+    with pytest.raises(ValueError, match="views must be a non-empty subset of 0..59"):
+        Evaluation.quick(views)
 
 
 def test_picture_shows_original_and_each_method(mesh, comparison):
@@ -207,10 +209,10 @@ def glb(tmp_path_factory):
     return path
 
 
-def test_cli_json_and_out_folder(glb, tmp_path, one_view, capsys):
+def test_cli_json_and_out_folder(glb, tmp_path, capsys):
     out = tmp_path / "out"
     argv = ["compare", str(glb), "--scale", "4", "--methods", "box,bicubic", "--json"]
-    assert main([*argv, "--out", str(out), "--device", "cpu"]) == 0
+    assert main([*argv, "--out", str(out), "--device", "cpu"], evaluation=ONE_VIEW) == 0
     document = json.loads(capsys.readouterr().out)
     assert document["protocol"] == 1 and document["mesh"] == str(glb)
     assert document["device"].startswith("cpu")
@@ -221,8 +223,9 @@ def test_cli_json_and_out_folder(glb, tmp_path, one_view, capsys):
     assert Image.open(out / "small_compare_x4.png").size[0] == 3 * 256 + 2 * 4
 
 
-def test_cli_text_table(glb, one_view, capsys):
-    assert main(["compare", str(glb), "--methods", "bicubic", "--device", "cpu"]) == 0
+def test_cli_text_table(glb, capsys):
+    argv = ["compare", str(glb), "--methods", "bicubic", "--device", "cpu"]
+    assert main(argv, evaluation=ONE_VIEW) == 0
     out = capsys.readouterr().out
     assert "protocol 1" in out and "PSNR-fg" in out and "bicubic" in out and "+0.00" in out
 
@@ -230,11 +233,12 @@ def test_cli_text_table(glb, one_view, capsys):
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        (["--methods", "box,nope"], "unknown method 'nope'"),
+        (["--methods", "box,nope"], "'nope': unknown method"),
         (["--scale", "1"], "whole number >= 2"),
         (["--distance", "0.5"], "must be over 1"),
         (["--methods", "box,box"], "listed twice"),
         (["--steps", "0"], "--steps 0"),
+        (["--time-budget", "inf"], "--time-budget inf"),
     ],
 )
 def test_cli_bad_arguments_exit_2(glb, extra, message, capsys):
@@ -257,38 +261,47 @@ def test_cli_refuses_existing_outputs_without_force(glb, tmp_path, capsys):
     assert (out / "small_compare.json").read_text() == "keep"
 
 
-def test_learned_methods_validate_on_the_views_compare_scores_on(one_view, monkeypatch):
-    import geoscaler.optimize
-    from geoscaler.methods import MethodOptions
+def test_learned_methods_validate_on_the_views_compare_scores_on(monkeypatch):
+    import geoscaler.methods.learned
 
     def refuse(*args, **kwargs):
         raise AssertionError("the method cached its own validation views")
 
-    monkeypatch.setattr(geoscaler.optimize, "validation_cameras", refuse)
-    options = MethodOptions(device="cpu", steps=1, extra={"optimize": {"pool_views": 1}})
+    monkeypatch.setattr(geoscaler.methods.learned, "cache_q", refuse)
+    mesh = demo_mesh(subdivisions=4, texture_size=64)
+    cached = []
+
+    class Watch(JobObserver):
+        def views_cached(self, distance, views):
+            cached.append((distance, len(views)))
+
+    options = MethodOptions(device="cpu", steps=1, settings={"optimize": {"pool_views": 1}})
     comparison = compare_mesh(
-        demo_mesh(subdivisions=4, texture_size=64), [4], ["bicubic", "direct"], options=options
+        mesh,
+        [4],
+        ["bicubic", "direct"],
+        options=options,
+        renderer=small_renderer(mesh),
+        observer=Watch(),
     )
     assert [row["method"] for row in comparison.rows] == ["bicubic", "direct"]
     assert comparison.outputs["direct", 4].details["steps"] == 1
+    assert cached == [(2.4, 1)]  # Q, once, with the renderer's one view
 
 
-def test_caching_the_shared_validation_views_counts_against_a_learned_methods_budget(
-    one_view, monkeypatch
-):
-    from geoscaler.methods import METHODS, MethodOptions
-
+def test_caching_the_shared_validation_views_counts_against_a_learned_methods_budget():
     budgets = []
 
-    def learned(mesh, scale, options):
-        budgets.append(options.time_budget)
-        return METHODS["bicubic"](mesh, scale, options)
+    def learned(mesh, scale, options, context):
+        budgets.append(context.time_budget)
+        return get_method("bicubic").run(mesh, scale, options, context)
 
-    monkeypatch.setitem(METHODS, "learned", learned)
+    mesh = demo_mesh(subdivisions=4, texture_size=64)
     options = MethodOptions(device="cpu", time_budget=30.0)
-    comparison = compare_mesh(
-        demo_mesh(subdivisions=4, texture_size=64), [4], ["learned"], options=options
-    )
+    with registered("learned", learned, learned=True):
+        comparison = compare_mesh(
+            mesh, [4], ["learned"], options=options, renderer=small_renderer(mesh)
+        )
     # the method's seconds include Q's caching, which is what its budget was reduced by
     assert len(budgets) == 1
     assert 0 < 30.0 - budgets[0] <= comparison.outputs["learned", 4].seconds

@@ -1,7 +1,8 @@
 """`geoscaler downsample` and `geoscaler demo` on a tiny procedural mesh.
 
-The command runs as users run it, except for the module's test hooks: 2 validation views of
-128 pixels stand for Q (the protocol: 60 of 512) and the optimiser caches 2 training views.
+The command runs as users run it, except for the settings a caller of ``main`` may pass:
+2 validation views of 128 pixels stand for Q (the protocol: 60 of 512) and the optimiser
+caches 2 training views.
 """
 
 import json
@@ -11,17 +12,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import small_renderer
 from PIL import Image
 
-from geoscaler import downsample as ds
-from geoscaler import files
-from geoscaler.baselines import lanczos
-from geoscaler.cli import main
-from geoscaler.mesh import load_mesh, save_mesh
+import geoscaler.cli
+import geoscaler.job
+from geoscaler.cli import demo
+from geoscaler.console import DownsampleProgress
+from geoscaler.filters import lanczos
+from geoscaler.io import load_mesh, paths, save_mesh
 from geoscaler.procedural import demo_mesh
+from geoscaler.protocol import Evaluation
 
-QUICK_VIEWS = [0, 31]
+QUICK_VIEWS = (0, 31)
+QUICK_EVALUATION = Evaluation.quick(QUICK_VIEWS)
 # Two steps at the default learning rate (0.005 in sRGB units, after a 10-step warm-up) move no
 # texel by a whole 8-bit code; these make two steps visible in the written texture.
 QUICK_OPTIMIZE = {
@@ -33,15 +36,9 @@ QUICK_OPTIMIZE = {
 }
 
 
-def quick_hooks(patch) -> None:
-    patch.setattr(ds, "VALIDATION_VIEWS", QUICK_VIEWS)
-    patch.setattr(ds, "RENDERER", small_renderer)
-    patch.setattr(ds, "OPTIMIZE_OVERRIDES", QUICK_OPTIMIZE)
-
-
-@pytest.fixture(autouse=True)
-def quick(monkeypatch):
-    quick_hooks(monkeypatch)
+def main(argv: list[str]) -> int:
+    """``geoscaler.cli.main`` with the quick settings above."""
+    return geoscaler.cli.main(argv, evaluation=QUICK_EVALUATION, optimize=QUICK_OPTIMIZE)
 
 
 def tiny_mesh():
@@ -65,16 +62,15 @@ def direct_run(glb, tmp_path_factory):
     out_dir = tmp_path_factory.mktemp("out")
     before = folder_bytes(glb.parent)
     produced = {}
-    real_export = ds.export
+    real_export = geoscaler.job.export
 
     def spy(mesh, result, output, force=False):
         produced["textures"] = [None if t is None else t.copy() for t in result.textures]
         produced["uvs"] = result.uvs
         return real_export(mesh, result, output, force)
 
-    with pytest.MonkeyPatch.context() as patch:
-        quick_hooks(patch)
-        patch.setattr(ds, "export", spy)
+    with pytest.MonkeyPatch.context() as patch:  # a spy: what the job hands the writer
+        patch.setattr(geoscaler.job, "export", spy)
         argv = ["downsample", str(glb), "--scale", "4", "-o", str(out_dir / "small.glb")]
         argv += ["--steps", "2", "--device", "cpu", "--report", str(out_dir / "report.json")]
         status = main(argv)
@@ -159,13 +155,13 @@ def no_work(monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("heavy work started before the arguments were checked")
 
-    monkeypatch.setattr(ds, "downsample", refuse)
+    monkeypatch.setattr(geoscaler.cli, "downsample_and_report", refuse)
 
 
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        (["--scale", "0"], "--scale 0: a scale must be a whole number >= 2"),
+        (["--scale", "0"], "--scale 0: must be a whole number >= 2"),
         (["--scale", "1"], "whole number >= 2"),
         (["--scale", "128"], "larger than the 64 x 64 texture"),
         (["--method", "nope"], "unknown method; choose one of: box, bicubic, lanczos"),
@@ -178,7 +174,10 @@ def no_work(monkeypatch):
         (["--time-budget", "0"], "--time-budget 0"),
         (["--report", "OUT"], "is the output mesh"),
         (["--report", "MESH"], "refusing to overwrite the input file"),
-        (["--method", "geoscaler", "--variant", "tiny"], "unknown variant 'tiny'; choose one of"),
+        (
+            ["--method", "geoscaler", "--variant", "tiny"],
+            "--variant 'tiny': unknown variant; choose one of",
+        ),
         (["--variant", "base"], "only --method geoscaler has variants"),
         (["--method", "geoscaler", "--vgg19", "MISSING.pth"], "--vgg19 MISSING.pth: no such"),
     ],
@@ -214,7 +213,7 @@ def test_an_unwritable_folder_is_refused(glb, tmp_path, no_work, monkeypatch, ca
     locked.mkdir()
     real_access = os.access
     monkeypatch.setattr(
-        files.os, "access", lambda p, mode: Path(p) != locked and real_access(p, mode)
+        paths.os, "access", lambda p, mode: Path(p) != locked and real_access(p, mode)
     )
     assert main(["downsample", str(glb), "-o", str(locked / "out.glb")]) == 2
     err = capsys.readouterr().err
@@ -231,7 +230,7 @@ def test_existing_side_files_of_an_obj_output_are_refused(glb, tmp_path, no_work
 
 def interrupt_at_step(monkeypatch, step: int, times: int) -> None:
     """Send SIGINT ``times`` times to this process when the loop reports ``step``."""
-    real = ds.Progress.on_event
+    real = DownsampleProgress.on_event
 
     def on_event(self, event):
         real(self, event)
@@ -239,7 +238,7 @@ def interrupt_at_step(monkeypatch, step: int, times: int) -> None:
             for _ in range(times):
                 os.kill(os.getpid(), signal.SIGINT)
 
-    monkeypatch.setattr(ds.Progress, "on_event", on_event)
+    monkeypatch.setattr(DownsampleProgress, "on_event", on_event)
 
 
 def test_ctrl_c_stops_cleanly_and_writes_the_best_result(glb, tmp_path, monkeypatch, capsys):
@@ -262,12 +261,16 @@ def test_a_second_ctrl_c_aborts(glb, tmp_path, monkeypatch, capsys):
     assert "interrupted" in capsys.readouterr().err
 
 
-def test_demo_builds_the_asset_and_writes_outputs(tmp_path, monkeypatch, capsys):
-    import geoscaler.procedural
+def quick_demo(out_dir: Path) -> dict:
+    """``geoscaler demo`` with the quick settings, under a budget that stops before the first
+    step (the command's own: 75 s)."""
+    return demo(
+        out_dir, "cpu", time_budget=1e-3, evaluation=QUICK_EVALUATION, optimize=QUICK_OPTIMIZE
+    )
 
-    monkeypatch.setattr(geoscaler.procedural, "demo_mesh", tiny_mesh)
-    monkeypatch.setattr(ds, "DEMO_TIME_BUDGET", 1e-3)  # stops before the first step
-    assert main(["demo", "--out", str(tmp_path / "demo"), "--device", "cpu"]) == 0
+
+def test_demo_builds_the_asset_and_writes_outputs(tmp_path, capsys):
+    quick_demo(tmp_path / "demo")
     written = sorted(p.name for p in (tmp_path / "demo").iterdir())
     assert written == [
         "demo_comparison.png",
@@ -281,7 +284,7 @@ def test_demo_builds_the_asset_and_writes_outputs(tmp_path, monkeypatch, capsys)
     picture = Image.open(tmp_path / "demo" / "demo_comparison.png")
     assert picture.size[0] == 3 * 256 + 2 * 4  # original | bicubic | direct
     asset = (tmp_path / "demo" / "geoscaler_demo.glb").read_bytes()
-    assert main(["demo", "--out", str(tmp_path / "demo"), "--device", "cpu"]) == 0
+    quick_demo(tmp_path / "demo")
     printed = capsys.readouterr().out
     assert "using the demo asset" in printed and "no optimisation step ran" in printed
     assert (tmp_path / "demo" / "geoscaler_demo.glb").read_bytes() == asset

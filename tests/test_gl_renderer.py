@@ -13,8 +13,8 @@ from app_support import gl_context, import_app_module
 from conftest import mesh_params
 
 from geoscaler.cameras import Camera, validation_cameras
-from geoscaler.mesh import load_mesh
-from geoscaler.methods import reference_textures
+from geoscaler.filters import reference_textures
+from geoscaler.io import load_mesh
 from geoscaler.metrics import psnr_fg
 from geoscaler.procedural import demo_mesh
 from geoscaler.render import Renderer

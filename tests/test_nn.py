@@ -9,21 +9,15 @@ import pytest
 import torch
 from conftest import small_renderer
 
+from geoscaler.arguments import check_methods
 from geoscaler.cameras import validation_cameras
 from geoscaler.errors import GeoscalerError
-from geoscaler.evaluate import ViewSet
+from geoscaler.filters import output_sizes
 from geoscaler.mesh import Material, TexturedMesh
-from geoscaler.methods import MethodOptions, run_method
+from geoscaler.methods import MethodOptions, RunContext, run_method
+from geoscaler.methods.network import NetworkModel, build_network
 from geoscaler.nn.convolutional import Decoder, Encoder
 from geoscaler.nn.geocoding import GeoCoding, GraphConv, sample_at_uvs
-from geoscaler.nn.geometry import (
-    INPUT_CHANNELS,
-    geometry_maps,
-    mesh_graph,
-    uv_raster,
-    vertex_materials,
-)
-from geoscaler.nn.method import NetworkModel, build_network
 from geoscaler.nn.network import VARIANTS, GeoScalerNet, NetworkConfig, parameter_count
 from geoscaler.nn.perceptual import PerceptualLoss, VGG19Features, load_vgg19, perceptual_loss
 from geoscaler.nn.uvwarper import (
@@ -35,8 +29,17 @@ from geoscaler.nn.uvwarper import (
     warp_uvs,
 )
 from geoscaler.procedural import demo_mesh
+from geoscaler.protocol import Evaluation
 from geoscaler.render import Renderer
 from geoscaler.texture import MipTexture
+from geoscaler.uvmaps import (
+    INPUT_CHANNELS,
+    geometry_maps,
+    mesh_graph,
+    uv_raster,
+    vertex_materials,
+)
+from geoscaler.views import ViewCache, ViewSet
 
 CPU = torch.device("cpu")
 
@@ -73,12 +76,16 @@ def small_mesh():
     return demo_mesh(subdivisions=4, texture_size=64)
 
 
-@pytest.fixture
-def small_images(monkeypatch):
-    """The method trains on 128-pixel views (the protocol's: 512)."""
-    import geoscaler.nn.method
-
-    monkeypatch.setattr(geoscaler.nn.method, "Renderer", small_renderer)
+def small_context(mesh: TexturedMesh, views: int) -> RunContext:
+    """What a job hands the method, small: it trains on 128-pixel views (the protocol's: 512)
+    and validates on the first ``views`` protocol views at 64 pixels (the protocol: 60 at 512)."""
+    validation = ViewSet(
+        Renderer(mesh, "cpu", Evaluation(image_size=64)), validation_cameras()[:views]
+    )
+    return RunContext(
+        renderer=small_renderer(mesh, device="cpu"),
+        validation=ViewCache(validation, output_sizes(mesh, 4), with_taps=True),
+    )
 
 
 # ----------------------------------------------------------------------------- shapes
@@ -197,7 +204,7 @@ def test_a_training_render_gathers_without_advanced_indexing(small_mesh):
     model = build_network(small_mesh, 4, NetworkConfig("full", 8, 8, 4, stem="pool"), CPU)
     randomise_zero_layers(model.network)
     textures, uvs = model.candidate()
-    renderer = small_renderer(small_mesh, CPU)
+    renderer = small_renderer(small_mesh, device=CPU)
     gbuffer = renderer.rasterize(validation_cameras()[0])
     image = renderer.render(gbuffer, [MipTexture(t) for t in textures], uvs)
     nodes = autograd_nodes(image.sum())
@@ -452,13 +459,11 @@ def test_torchvisions_cache_is_used_when_it_holds_the_weights(monkeypatch, tmp_p
 # ----------------------------------------------------------------------------- the method
 
 
-def test_the_same_seed_trains_the_same_network(small_mesh, small_images):
+def test_the_same_seed_trains_the_same_network(small_mesh):
     def train(seed: int):
         options = MethodOptions(device="cpu", seed=seed, steps=3)
-        options.extra["validation_views"] = ViewSet(
-            Renderer(small_mesh, "cpu", image_size=64), validation_cameras()[:2]
-        )
-        result = run_method("geoscaler-full", small_mesh, 4, options)
+        context = small_context(small_mesh, views=2)
+        result = run_method("geoscaler-full", small_mesh, 4, options, context)
         return result.textures[0], result.uvs
 
     first, again, other = train(0), train(0), train(1)
@@ -467,12 +472,9 @@ def test_the_same_seed_trains_the_same_network(small_mesh, small_images):
 
 
 @pytest.mark.parametrize("name", ["geoscaler-base", "geoscaler-uvw"])
-def test_the_method_returns_8bit_textures_and_valid_uvs(small_mesh, small_images, name):
-    options = MethodOptions(device="cpu", steps=2, extra={"optimize": {"pool_views": 2}})
-    options.extra["validation_views"] = ViewSet(
-        Renderer(small_mesh, "cpu", image_size=64), validation_cameras()[:2]
-    )
-    result = run_method(name, small_mesh, 4, options)
+def test_the_method_returns_8bit_textures_and_valid_uvs(small_mesh, name):
+    options = MethodOptions(device="cpu", steps=2, settings={"optimize": {"pool_views": 2}})
+    result = run_method(name, small_mesh, 4, options, small_context(small_mesh, views=2))
     (texture,) = result.textures
     assert texture.dtype == np.uint8 and texture.shape == (16, 16, 3)
     assert result.details["variant"] == name.split("-")[1]
@@ -500,22 +502,17 @@ def test_the_model_exposes_the_network_weights(small_mesh):
     assert len(model.parameters()) == len(list(model.network.parameters()))
 
 
-def test_the_paper_preset_trains_with_the_perceptual_term_from_a_file(
-    small_mesh, small_images, vgg_file
-):
+def test_the_paper_preset_trains_with_the_perceptual_term_from_a_file(small_mesh, vgg_file):
     options = MethodOptions(
         device="cpu",
         steps=1,
-        extra={
+        settings={
             "preset": "paper",
             "vgg19": str(vgg_file[0]),
             "optimize": {"pool_views": 1, "validate_every": 1},
-            "validation_views": ViewSet(
-                Renderer(small_mesh, "cpu", image_size=64), validation_cameras()[:1]
-            ),
         },
     )
-    result = run_method("geoscaler-gcm", small_mesh, 4, options)
+    result = run_method("geoscaler-gcm", small_mesh, 4, options, small_context(small_mesh, 1))
     assert result.details["perceptual"] == f"VGG-19 from {vgg_file[0]}"
     assert result.details["preset"] == "paper" and result.details["steps"] == 1
     assert result.textures[0].shape == (16, 16, 3)
@@ -524,19 +521,17 @@ def test_the_paper_preset_trains_with_the_perceptual_term_from_a_file(
 def test_unknown_variants_and_presets_are_refused(small_mesh):
     for extra, message in [({"variant": "tiny"}, "variant 'tiny'"), ({"preset": "x"}, "preset")]:
         with pytest.raises(GeoscalerError, match=message):
-            run_method("geoscaler", small_mesh, 4, MethodOptions(device="cpu", extra=extra))
+            run_method("geoscaler", small_mesh, 4, MethodOptions(device="cpu", settings=extra))
 
 
 # ----------------------------------------------------------------------------- command line
 
 
 def test_variants_become_rows_of_their_own_in_compare_and_bench():
-    from geoscaler.compare import parse_methods
-
-    names = parse_methods("bicubic,geoscaler,direct", "base,full")
+    names = check_methods("bicubic,geoscaler,direct", "base,full")
     assert names == ["bicubic", "geoscaler-base", "geoscaler-full", "direct"]
-    assert parse_methods("geoscaler-uvw") == ["geoscaler-uvw"]
+    assert check_methods("geoscaler-uvw") == ["geoscaler-uvw"]
     with pytest.raises(GeoscalerError, match="list geoscaler in --methods"):
-        parse_methods("bicubic", "base")
-    with pytest.raises(GeoscalerError, match="unknown variant 'big'"):
-        parse_methods("geoscaler", "big")
+        check_methods("bicubic", "base")
+    with pytest.raises(GeoscalerError, match="--variant 'big': unknown variant"):
+        check_methods("geoscaler", "big")

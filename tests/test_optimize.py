@@ -6,34 +6,37 @@ import numpy as np
 import pytest
 import torch
 
-from geoscaler.baselines import lanczos
 from geoscaler.cameras import validation_cameras
-from geoscaler.direct import TexelModel
-from geoscaler.evaluate import ViewSet
+from geoscaler.filters import lanczos, output_sizes, reference_textures
 from geoscaler.mesh import Material
-from geoscaler.methods import MethodOptions, reference_textures, run_method
+from geoscaler.methods import MethodOptions, RunContext, run_method
+from geoscaler.methods.direct import TexelModel
 from geoscaler.metrics import mean_metrics
 from geoscaler.optimize import (
     Controller,
     OptimizeConfig,
-    ViewCache,
     _learning_rate_factor,
     _time_spent,
     fill_unseen,
     optimize,
 )
 from geoscaler.procedural import demo_mesh
+from geoscaler.protocol import Evaluation
 from geoscaler.render import Renderer
 from geoscaler.texture import linear_to_srgb, linear_to_texture, texture_to_linear
+from geoscaler.views import ViewCache, ViewSet, cache_view_set
 
 SCALE = 4
 
 
 @pytest.fixture(scope="module")
 def scene():
+    """The mesh, a 64-pixel renderer and validation views (every tenth protocol view) cached
+    with the taps of the 32 x 32 candidate."""
     mesh = demo_mesh(subdivisions=6, texture_size=128)
-    renderer = Renderer(mesh, "cpu", image_size=64)
-    validation = ViewSet(renderer, validation_cameras()[::10])
+    renderer = Renderer(mesh, "cpu", Evaluation(image_size=64))
+    views = ViewSet(renderer, validation_cameras()[::10])
+    validation = ViewCache(views, output_sizes(mesh, SCALE), with_taps=True)
     return mesh, renderer, validation
 
 
@@ -103,7 +106,7 @@ def test_the_loop_trains_on_the_cameras_it_is_given(scene):
         small_config(steps=1),
         on_event=lambda event: cached.append(event.total) if event.phase == "caching" else None,
         validation=validation,
-        training_cameras=validation.cameras[:3],
+        training_cameras=validation.views.cameras[:3],
     )
     assert cached == [3, 3, 3]
 
@@ -133,7 +136,7 @@ def test_a_controller_stops_the_loop_from_outside(scene):
             controller.stop()
 
     result = optimize(
-        renderer, lanczos_model(mesh), small_config(), on_event, controller, validation
+        renderer, lanczos_model(mesh), small_config(), validation, on_event, controller
     )
     assert result.steps == 4 and result.stopped_by == "stopped"
     phases = [e.phase for e in events]
@@ -183,10 +186,10 @@ def test_a_single_seen_texel_colours_everything():
 
 def test_direct_method_returns_an_8bit_texture_of_the_target_size():
     mesh = demo_mesh(subdivisions=4, texture_size=64)
-    options = MethodOptions(device="cpu", steps=2, extra={"optimize": {"pool_views": 2}})
-    validation = ViewSet(Renderer(mesh, "cpu"), validation_cameras()[:2])
-    options.extra["validation_views"] = validation
-    result = run_method("direct", mesh, SCALE, options)
+    options = MethodOptions(device="cpu", steps=2, settings={"optimize": {"pool_views": 2}})
+    renderer = Renderer(mesh, "cpu", Evaluation(views=(0, 1)))
+    validation = cache_view_set(renderer, 2.4, output_sizes(mesh, SCALE))
+    result = run_method("direct", mesh, SCALE, options, RunContext(renderer, validation))
     (texture,) = result.textures
     assert texture.dtype == np.uint8 and texture.shape == (16, 16, 3)
     assert result.details["steps"] == 2 and result.seconds > 0
@@ -195,8 +198,8 @@ def test_direct_method_returns_an_8bit_texture_of_the_target_size():
 def test_cached_taps_render_exactly_what_the_renderer_renders(scene):
     _, _, validation = scene
     texture = torch.rand(32, 32, 3)
-    cached = ViewCache(validation, [(32, 32)], with_taps=True)
-    general = ViewCache(validation, [(32, 32)], with_taps=False)
+    cached = ViewCache(validation.views, [(32, 32)], with_taps=True)
+    general = ViewCache(validation.views, [(32, 32)], with_taps=False)
     for view in range(len(validation)):
         torch.testing.assert_close(
             cached.render(view, [texture], None),
@@ -214,7 +217,7 @@ def test_cached_taps_handle_several_and_untextured_materials():
         Material("tinted", mesh.materials[0].base_color_texture, np.array([1, 0.5, 0.25, 1])),
         Material("plain", None, np.array([0.2, 0.4, 0.6, 1.0], dtype=np.float32)),
     ]
-    renderer = Renderer(mesh, "cpu", image_size=32)
+    renderer = Renderer(mesh, "cpu", Evaluation(image_size=32))
     views = ViewSet(renderer, validation_cameras()[:3])
     textures = [torch.rand(8, 8, 3), torch.rand(16, 8, 3), None]
     sizes = [(8, 8), (16, 8), None]

@@ -9,6 +9,7 @@ import torch
 from geoscaler.cameras import Camera, validation_cameras
 from geoscaler.mesh import Material, TexturedMesh
 from geoscaler.procedural import demo_mesh
+from geoscaler.protocol import Evaluation
 from geoscaler.render import Renderer
 from geoscaler.texture import MipTexture, linear_to_srgb, srgb_to_linear
 
@@ -41,7 +42,9 @@ def front(distance: float) -> Camera:
 
 def test_constant_texture_renders_its_colour_times_the_factor():
     texture = np.full((8, 8, 3), [200, 100, 50], dtype=np.uint8)
-    renderer = Renderer(quad_mesh(texture, factor=(0.5, 1.0, 1.0, 1.0)), "cpu", image_size=64)
+    renderer = Renderer(
+        quad_mesh(texture, factor=(0.5, 1.0, 1.0, 1.0)), "cpu", Evaluation(image_size=64)
+    )
     gbuffer = renderer.rasterize(front(2.4))
     image = renderer.render(gbuffer, renderer.reference_textures())
     inside = renderer.foreground(gbuffer)
@@ -56,7 +59,7 @@ def test_constant_texture_renders_its_colour_times_the_factor():
 
 
 def test_foreground_is_any_covered_sample():
-    renderer = Renderer(quad_mesh(checker(4)), "cpu", image_size=32)
+    renderer = Renderer(quad_mesh(checker(4)), "cpu", Evaluation(image_size=32))
     gbuffer = renderer.rasterize(front(2.4))
     coverage = gbuffer.coverage().view(32, 2, 32, 2).any(3).any(1)
     assert torch.equal(renderer.foreground(gbuffer), coverage)
@@ -72,7 +75,7 @@ def footprint_lod(renderer: Renderer, camera: Camera, texture: MipTexture) -> to
 @pytest.mark.parametrize("distance", [1.5, 2.4, 4.0])
 def test_level_of_detail_follows_the_analytic_jacobian(distance):
     size = 256
-    renderer = Renderer(quad_mesh(checker(size)), "cpu", image_size=64)
+    renderer = Renderer(quad_mesh(checker(size)), "cpu", Evaluation(image_size=64))
     texture = renderer.reference_textures()[0]
     # A facing quad of side 2 HALF spans size texels; one sample step covers
     # 2 / resolution NDC = (2 / resolution) D tan(22.5) world units.
@@ -83,7 +86,7 @@ def test_level_of_detail_follows_the_analytic_jacobian(distance):
 
 def test_minified_checker_renders_as_its_mip_average():
     # Texel-sized checker: every level from 1 down is uniform grey 0.5 in linear light.
-    renderer = Renderer(quad_mesh(checker(256)), "cpu", image_size=64)
+    renderer = Renderer(quad_mesh(checker(256)), "cpu", Evaluation(image_size=64))
     gbuffer = renderer.rasterize(front(2.4))
     image = renderer.render(gbuffer, renderer.reference_textures())
     grey = linear_to_srgb(torch.tensor(0.5)).item()
@@ -92,7 +95,7 @@ def test_minified_checker_renders_as_its_mip_average():
 
 def test_magnified_texture_uses_level_zero_bilinear():
     # 4 x 4 texels seen at 1.5: texels are magnified, so every sample is a level-0 bilinear tap.
-    renderer = Renderer(quad_mesh(checker(4)), "cpu", image_size=128)
+    renderer = Renderer(quad_mesh(checker(4)), "cpu", Evaluation(image_size=128))
     gbuffer = renderer.rasterize(front(1.5))
     texture = renderer.reference_textures()[0]
     assert footprint_lod(renderer, front(1.5), texture).max() < 0
@@ -108,7 +111,7 @@ def test_magnified_texture_uses_level_zero_bilinear():
 
 def test_render_is_differentiable_in_texels_and_uvs():
     mesh = quad_mesh(checker(4))
-    renderer = Renderer(mesh, "cpu", image_size=6)
+    renderer = Renderer(mesh, "cpu", Evaluation(image_size=6))
     gbuffer = renderer.rasterize(Camera((0.3, 0.2, 0.93), 2.0))
     texels = torch.rand(4, 4, 3, dtype=torch.float64, requires_grad=True)
     uvs = renderer.uvs.double().mul(0.9).add(0.03).requires_grad_(True)
@@ -121,7 +124,7 @@ def test_render_is_differentiable_in_texels_and_uvs():
 
 def test_demo_asset_renders_deterministically_with_multi_chart_uvs():
     mesh = demo_mesh(subdivisions=8, texture_size=128)
-    renderer = Renderer(mesh, "cpu", image_size=64)
+    renderer = Renderer(mesh, "cpu", Evaluation(image_size=64))
     camera = validation_cameras()[7]
     first = renderer.render(renderer.rasterize(camera), renderer.reference_textures())
     second = renderer.render(renderer.rasterize(camera), renderer.reference_textures())

@@ -16,6 +16,7 @@ from geoscaler.texture import (
     mip_sizes,
     srgb_to_linear,
     texture_to_linear,
+    to_rgb,
 )
 
 
@@ -43,6 +44,16 @@ def test_texture_conversion_round_trips_uint8():
     assert np.array_equal(linear_to_texture(linear), texture[..., :3])
     gray = texture_to_linear(texture[..., 0])
     assert torch.equal(gray[..., 0], gray[..., 2])
+
+
+def test_to_rgb_broadcasts_grey_and_drops_alpha():
+    texture = np.random.default_rng(0).integers(0, 256, (5, 7, 4), dtype=np.uint8)
+    for grey in (texture[..., 0], texture[..., :1], texture[..., :2]):  # (H, W), L, LA
+        rgb = to_rgb(grey)
+        assert rgb.shape == (5, 7, 3) and rgb.dtype == np.uint8
+        assert all(np.array_equal(rgb[..., c], texture[..., 0]) for c in range(3))
+    assert np.array_equal(to_rgb(texture), texture[..., :3])
+    assert np.array_equal(to_rgb(texture[..., :3]), texture[..., :3])
 
 
 def test_mip_sizes_halve_down_to_one():

@@ -1,7 +1,9 @@
-"""The GeoScaler network: encoder, GeoCoding, UVWarper, decoder, and the method that trains it.
+"""The GeoScaler network's ``nn.Module``s: encoder and decoder, GeoCoding, UVWarper, the
+network with its ablation variants, and the VGG-19 perceptual term.
 
-Modules, each testable alone: :mod:`~geoscaler.nn.geometry` (what the network reads of the
-mesh), :mod:`~geoscaler.nn.convolutional`, :mod:`~geoscaler.nn.geocoding`,
-:mod:`~geoscaler.nn.uvwarper`, :mod:`~geoscaler.nn.network` (variants),
-:mod:`~geoscaler.nn.perceptual` (VGG-19 term) and :mod:`~geoscaler.nn.method` (presets).
+Modules, each testable alone: :mod:`~geoscaler.nn.convolutional`, :mod:`~geoscaler.nn.geocoding`,
+:mod:`~geoscaler.nn.uvwarper`, :mod:`~geoscaler.nn.network` (variants) and
+:mod:`~geoscaler.nn.perceptual`. What they read of the mesh is built in
+:mod:`geoscaler.uvmaps`; the method that trains them per mesh is
+:mod:`geoscaler.methods.network`.
 """

@@ -13,8 +13,8 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from geoscaler.nn.geometry import MeshGraph, UVRaster
 from geoscaler.texture import take
+from geoscaler.uvmaps import MeshGraph, UVRaster
 
 
 class GraphConv(nn.Module):

@@ -21,11 +21,10 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from geoscaler.errors import GeoscalerError
 from geoscaler.nn.convolutional import Decoder, Encoder
 from geoscaler.nn.geocoding import GeoCoding
-from geoscaler.nn.geometry import INPUT_CHANNELS, MeshGraph, UVRaster
 from geoscaler.nn.uvwarper import UVWarper, fold_free_factor, warp_plane, warp_uvs
+from geoscaler.uvmaps import INPUT_CHANNELS, MeshGraph, UVRaster
 
 VARIANTS = {
     "base": (False, False),
@@ -33,13 +32,6 @@ VARIANTS = {
     "uvw": (False, True),
     "full": (True, True),
 }
-
-
-def check_variant(name: str) -> str:
-    """``name`` when it names a variant; otherwise a :class:`GeoscalerError` listing them."""
-    if name not in VARIANTS:
-        raise GeoscalerError(f"unknown variant {name!r}; choose one of {', '.join(VARIANTS)}")
-    return name
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,8 @@
 
 The network maps the texture and its geometry maps to the small texture (and, for the
 warping variants, new UVs); its weights are the parameters of the shared optimisation loop
-(:func:`geoscaler.optimize.optimize`), exactly as the texels are for ``direct``.
+(:func:`geoscaler.optimize.optimize`), exactly as the texels are for ``direct``. Registered
+as ``geoscaler`` and, one per ablation variant, ``geoscaler-base``, ``-gcm``, ``-uvw``, ``-full``.
 
 Presets:
 
@@ -26,35 +27,28 @@ import numpy as np
 import torch
 from PIL import Image
 
-from geoscaler.baselines import lanczos, target_size
 from geoscaler.errors import GeoscalerError
+from geoscaler.filters import lanczos, reference_textures, target_size
 from geoscaler.mesh import TexturedMesh
-from geoscaler.methods import (
-    MethodOptions,
-    MethodResult,
-    reference_textures,
-    register,
-    register_alias,
+from geoscaler.methods.learned import fit, loop_config, method_renderer
+from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext, register
+from geoscaler.nn.network import (
+    VARIANTS,
+    GeoScalerNet,
+    MeshGeometry,
+    NetworkConfig,
+    parameter_count,
 )
-from geoscaler.nn.geometry import (
+from geoscaler.nn.perceptual import perceptual_loss
+from geoscaler.optimize import PerceptualTerm
+from geoscaler.texture import texture_to_linear
+from geoscaler.uvmaps import (
     check_square,
     geometry_maps,
     mesh_graph,
     uv_raster,
     vertex_materials,
 )
-from geoscaler.nn.network import (
-    VARIANTS,
-    GeoScalerNet,
-    MeshGeometry,
-    NetworkConfig,
-    check_variant,
-    parameter_count,
-)
-from geoscaler.nn.perceptual import perceptual_loss
-from geoscaler.optimize import OptimizeConfig, PerceptualTerm, optimize_method
-from geoscaler.render import Renderer
-from geoscaler.texture import linear_to_texture, texture_to_linear
 
 
 @dataclass(frozen=True)
@@ -98,6 +92,15 @@ PRESETS = {
 }
 DEFAULT_PRESET = "cpu"
 DEFAULT_VARIANT = "full"
+
+
+def check_variant(name: str) -> str:
+    """``name`` when it names a network variant (the one check of ``--variant``)."""
+    if name not in VARIANTS:
+        raise GeoscalerError(
+            f"--variant {name!r}: unknown variant; choose one of {', '.join(VARIANTS)}"
+        )
+    return name
 
 
 class NetworkModel:
@@ -181,56 +184,52 @@ def build_network(
     return NetworkModel(network, inputs, geometry, bases)
 
 
-def geoscaler_network(mesh: TexturedMesh, scale: int, options: MethodOptions) -> MethodResult:
+def geoscaler_network(
+    mesh: TexturedMesh, scale: int, options: MethodOptions, context: RunContext
+) -> MethodResult:
     """Train the GeoScaler network on ``mesh`` and return its texture (and UVs).
 
-    ``options.extra``: ``"variant"`` (base, gcm, uvw, full), ``"preset"`` (cpu, paper),
+    ``options.settings``: ``"variant"`` (base, gcm, uvw, full), ``"preset"`` (cpu, paper),
     ``"vgg19"`` (path of VGG-19 weights for the perceptual term), ``"optimize"`` overrides.
     """
     started = time.perf_counter()  # the time budget covers building the network too
-    variant = check_variant(options.extra.get("variant") or DEFAULT_VARIANT)
-    preset_name = options.extra.get("preset") or DEFAULT_PRESET
+    variant = check_variant(options.settings.get("variant") or DEFAULT_VARIANT)
+    preset_name = options.settings.get("preset") or DEFAULT_PRESET
     if preset_name not in PRESETS:
         raise GeoscalerError(f"preset {preset_name!r}: choose one of {', '.join(PRESETS)}")
     preset = PRESETS[preset_name]
-    renderer = Renderer(mesh, options.device)
+    renderer = method_renderer(mesh, options, context)
     torch.manual_seed(options.seed)
     config = replace(preset.network, variant=variant)
     model = build_network(mesh, scale, config, renderer.device)
 
     perceptual, perceptual_note = None, "off in this preset"
     if preset.perceptual_weight > 0:
-        loss, perceptual_note = perceptual_loss(options.extra.get("vgg19"), renderer.device)
+        loss, perceptual_note = perceptual_loss(options.settings.get("vgg19"), renderer.device)
         perceptual = None if loss is None else PerceptualTerm(loss, preset.perceptual_weight)
 
-    settings = {**preset.optimize, **options.extra.get("optimize", {})}
-    settings["steps"] = options.steps or settings.get("steps", 300)
-    loop = OptimizeConfig(time_budget=options.time_budget, seed=options.seed, **settings)
-    result = optimize_method(
-        renderer,
-        model,
-        loop,
-        options,
-        keeps_uvs=not config.uv_warper,
-        perceptual=perceptual,
-        started_at=started,
-    )
-    textures = [None if t is None else linear_to_texture(t) for t in result.textures]
+    loop = loop_config({"steps": 300, **preset.optimize}, options, context)
     details = {
-        "device": str(renderer.device),
         "variant": variant,
         "preset": preset_name,
         "parameters": parameter_count(model.network),
         "perceptual": perceptual_note,
-        "steps": result.steps,
-        "best_step": result.best_step,
-        "validation_psnr_fg": result.best_psnr,
-        "stopped_by": result.stopped_by,
     }
-    uvs = None if result.uvs is None else result.uvs.detach().cpu().numpy().astype(np.float32)
-    if uvs is not None:
-        details["uv_shift_texels"] = uv_shift(mesh, uvs, textures)
-    return MethodResult(textures, uvs, details=details)
+    result = fit(
+        mesh,
+        scale,
+        renderer,
+        model,
+        loop,
+        context,
+        started,
+        keeps_uvs=not config.uv_warper,
+        perceptual=perceptual,
+        details=details,
+    )
+    if result.uvs is not None:
+        result.details["uv_shift_texels"] = uv_shift(mesh, result.uvs, result.textures)
+    return result
 
 
 def uv_shift(
@@ -245,6 +244,8 @@ def uv_shift(
     return {"mean": float(distance.mean()), "max": float(distance.max())}
 
 
-register("geoscaler", geoscaler_network)
+register("geoscaler", geoscaler_network, learned=True)
 for _variant in VARIANTS:
-    register_alias(f"geoscaler-{_variant}", "geoscaler", {"variant": _variant})
+    register(
+        f"geoscaler-{_variant}", geoscaler_network, learned=True, settings={"variant": _variant}
+    )

@@ -1,4 +1,4 @@
-"""Specification of geoscaler.baselines: the protocol's baseline downsamplers."""
+"""Specification of geoscaler.filters: the protocol's baseline downsamplers."""
 
 from __future__ import annotations
 
@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from geoscaler.baselines import (
+from geoscaler.errors import GeoscalerError
+from geoscaler.filters import (
     BASELINES,
     _box_float,
     _pbd_float,
@@ -16,7 +17,6 @@ from geoscaler.baselines import (
     reference_texture,
     target_size,
 )
-from geoscaler.errors import GeoscalerError
 
 METHODS = sorted(BASELINES)
 

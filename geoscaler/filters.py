@@ -15,15 +15,15 @@ scale)``:
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 from PIL import Image
 
 from geoscaler.errors import GeoscalerError
-
-REFERENCE_MAX_SIZE = 2048
-"""Longer side above which an original is reduced before evaluation (the paper's setting)."""
+from geoscaler.mesh import TexturedMesh, check_texture
+from geoscaler.protocol import REFERENCE_MAX_SIZE
 
 PBD_PATCH = 2
 """Side of PBD's square patches, in low-resolution pixels."""
@@ -35,10 +35,14 @@ __all__ = [
     "BASELINES",
     "bicubic",
     "box",
+    "check_scale",
     "downsample_texture",
     "lanczos",
     "pbd",
+    "output_sizes",
+    "reference_size",
     "reference_texture",
+    "reference_textures",
     "target_size",
 ]
 
@@ -46,6 +50,16 @@ __all__ = [
 def _round_ratio(numerator: int, denominator: int) -> int:
     """``numerator / denominator`` rounded half up, in exact integer arithmetic."""
     return (2 * numerator + denominator) // (2 * denominator)
+
+
+def check_scale(scale: Any) -> int:
+    """``scale`` as an int when it is a whole number >= 2 (bools and floats such as 4.0 are
+    not); otherwise the one error message for a bad scale, wherever it was given."""
+    if isinstance(scale, bool) or not isinstance(scale, int | np.integer) or scale < 2:
+        raise GeoscalerError(
+            f"--scale {scale!r}: must be a whole number >= 2, e.g. 4 (2048 -> 512) or 8"
+        )
+    return int(scale)
 
 
 def target_size(height: int, width: int, scale: int) -> tuple[int, int]:
@@ -65,10 +79,7 @@ def target_size(height: int, width: int, scale: int) -> tuple[int, int]:
         GeoscalerError: ``scale`` is not a whole number >= 2 (bools and floats such as 4.0
             count as not whole numbers) or is larger than the texture's shorter side.
     """
-    if isinstance(scale, bool) or not isinstance(scale, int | np.integer) or scale < 2:
-        raise GeoscalerError(
-            f"scale {scale!r}: must be a whole number >= 2 (e.g. 4 or 8), given as an integer"
-        )
+    scale = check_scale(scale)
     if height < 1 or width < 1:
         raise GeoscalerError(f"texture size {height} x {width}: both sides must be >= 1 texel")
     if scale > min(height, width):
@@ -80,20 +91,9 @@ def target_size(height: int, width: int, scale: int) -> tuple[int, int]:
     return _round_ratio(height, scale), _round_ratio(width, scale)
 
 
-def _check_texture(texture: np.ndarray) -> None:
-    """Raise GeoscalerError unless ``texture`` is an ``(H, W, C)`` uint8 array, C in 1..4."""
-    if not isinstance(texture, np.ndarray) or texture.ndim != 3 or texture.dtype != np.uint8:
-        shape = getattr(texture, "shape", None)
-        dtype = getattr(texture, "dtype", type(texture).__name__)
-        raise GeoscalerError(
-            f"texture of shape {shape} and type {dtype}: expected an (H, W, C) uint8 array "
-            f"(8 bits per channel)"
-        )
-    if not 1 <= texture.shape[2] <= 4:
-        raise GeoscalerError(
-            f"texture with {texture.shape[2]} channels: expected 1 to 4 (grey, grey+alpha, "
-            f"RGB or RGBA)"
-        )
+_CHANNELS = (1, 2, 3, 4)
+"""Channel counts the filters accept (grey, grey+alpha, RGB, RGBA); checked by
+:func:`geoscaler.mesh.check_texture`, which raises a GeoscalerError."""
 
 
 def _pillow_resize(
@@ -115,7 +115,7 @@ def _pillow_resize(
 
 def _resample(texture: np.ndarray, scale: int, resample: Image.Resampling) -> np.ndarray:
     """Validate, then resize ``texture`` to ``target_size`` with a Pillow filter."""
-    _check_texture(texture)
+    check_texture(texture, channels=_CHANNELS)
     size = target_size(texture.shape[0], texture.shape[1], scale)
     return _pillow_resize(texture, size, resample)
 
@@ -252,7 +252,7 @@ def pbd(texture: np.ndarray, scale: int) -> np.ndarray:
     provided only as a baseline for comparison; check the patent before using it in a
     product.
     """
-    _check_texture(texture)
+    check_texture(texture, channels=_CHANNELS)
     size = target_size(texture.shape[0], texture.shape[1], scale)
     result = _pbd_float(texture.astype(np.float64) / 255.0, size)
     return np.floor(np.clip(result, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
@@ -299,15 +299,51 @@ def reference_texture(texture: np.ndarray, max_size: int = REFERENCE_MAX_SIZE) -
     Returns:
         ``(H', W', C)`` uint8 with ``max(H', W') <= max_size``.
     """
-    _check_texture(texture)
+    check_texture(texture, channels=_CHANNELS)
     if max_size < 1:
         raise GeoscalerError(f"max_size {max_size}: must be at least 1 texel")
-    height, width = texture.shape[:2]
+    size = reference_size(*texture.shape[:2], max_size)
+    if size == texture.shape[:2]:
+        return texture
+    return _pillow_resize(texture, size, Image.Resampling.LANCZOS)
+
+
+def reference_size(height: int, width: int, max_size: int = REFERENCE_MAX_SIZE) -> tuple[int, int]:
+    """``(h, w)`` of the reference map of a ``height x width`` original (see
+    :func:`reference_texture`): the original's size, or its aspect ratio at ``max_size``."""
     longer = max(height, width)
     if longer <= max_size:
-        return texture
-    size = (
+        return height, width
+    return (
         max(_round_ratio(height * max_size, longer), 1),
         max(_round_ratio(width * max_size, longer), 1),
     )
-    return _pillow_resize(texture, size, Image.Resampling.LANCZOS)
+
+
+def reference_textures(mesh: TexturedMesh) -> list[np.ndarray | None]:
+    """The protocol's reference map of every material's base colour (None where untextured):
+    the one definition of "the reference textures" that methods, scores and the app use."""
+    return [
+        None if m.base_color_texture is None else reference_texture(m.base_color_texture)
+        for m in mesh.materials
+    ]
+
+
+def output_sizes(mesh: TexturedMesh, scale: int) -> list[tuple[int, int] | None]:
+    """Per material the ``(h, w)`` of its base-colour map ``scale`` times smaller than its
+    reference map (None where untextured): the size every method returns.
+
+    Raises:
+        GeoscalerError: the scale is too large for a texture (the message names the material).
+    """
+    sizes: list[tuple[int, int] | None] = []
+    for material in mesh.materials:
+        texture = material.base_color_texture
+        if texture is None:
+            sizes.append(None)
+            continue
+        try:
+            sizes.append(target_size(*reference_size(*texture.shape[:2]), scale))
+        except GeoscalerError as error:
+            raise GeoscalerError(f"material {material.name!r}: {error}") from None
+    return sizes

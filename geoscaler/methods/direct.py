@@ -10,19 +10,18 @@ import time
 
 import torch
 
-from geoscaler.baselines import lanczos
+from geoscaler.filters import lanczos, reference_textures
 from geoscaler.mesh import TexturedMesh
-from geoscaler.methods import MethodOptions, MethodResult, reference_textures, register
-from geoscaler.optimize import OptimizeConfig, optimize_method
+from geoscaler.methods.learned import fit, loop_config, method_renderer
+from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext, register
 from geoscaler.render import Renderer
-from geoscaler.texture import linear_to_srgb, linear_to_texture, srgb_to_linear, texture_to_linear
+from geoscaler.texture import linear_to_srgb, srgb_to_linear, texture_to_linear
 
-DEFAULT_STEPS = 300
 # Texels are optimised as sRGB values (see TexelModel). Measured at 4x, 300 steps, no SSIM term:
 # learning rate 0.003 / 0.01 gained +2.84 / +2.82 dB PSNR-fg over bicubic on Q on the lego scan
 # and +1.86 / +1.88 dB on spot. (Parameterised in linear light, lr 0.05 sent the lego to 30 dB
 # before it recovered and 0.002 was needed for +2.79 dB.) The SSIM term gained less at equal time.
-DEFAULT_CONFIG = {"lr": 0.005, "ssim_weight": 0.0, "validate_every": 100}
+DEFAULT_CONFIG = {"steps": 300, "lr": 0.005, "ssim_weight": 0.0, "validate_every": 100}
 
 
 class TexelModel:
@@ -62,28 +61,15 @@ def lanczos_texel_model(mesh: TexturedMesh, scale: int, renderer: Renderer) -> T
     )
 
 
-def direct(mesh: TexturedMesh, scale: int, options: MethodOptions) -> MethodResult:
+def direct(
+    mesh: TexturedMesh, scale: int, options: MethodOptions, context: RunContext
+) -> MethodResult:
     """Optimise the texels of Lanczos-initialised textures ``scale`` times smaller."""
     started = time.perf_counter()  # the time budget covers the set-up too
-    renderer = Renderer(mesh, options.device)
+    renderer = method_renderer(mesh, options, context)
     model = lanczos_texel_model(mesh, scale, renderer)
-    settings = {**DEFAULT_CONFIG, **options.extra.get("optimize", {})}
-    config = OptimizeConfig(
-        steps=options.steps or DEFAULT_STEPS,
-        time_budget=options.time_budget,
-        seed=options.seed,
-        **settings,
-    )
-    result = optimize_method(renderer, model, config, options, started_at=started)
-    textures = [None if t is None else linear_to_texture(t) for t in result.textures]
-    details = {
-        "device": str(renderer.device),
-        "steps": result.steps,
-        "best_step": result.best_step,
-        "validation_psnr_fg": result.best_psnr,
-        "stopped_by": result.stopped_by,
-    }
-    return MethodResult(textures, None, details=details)
+    config = loop_config(DEFAULT_CONFIG, options, context)
+    return fit(mesh, scale, renderer, model, config, context, started)
 
 
-register("direct", direct)
+register("direct", direct, learned=True)

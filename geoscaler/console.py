@@ -1,0 +1,178 @@
+"""What the terminal shows while a job runs: tqdm progress bars, and Ctrl-C handling."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from typing import Any
+
+from geoscaler.job import JobObserver
+from geoscaler.optimize import Controller, ProgressEvent
+
+
+class DownsampleProgress(JobObserver):
+    """One tqdm bar for a downsampling job: view caching, then optimisation steps, then scoring.
+
+    Caching counts the views of Q, then the method's training views. Steps show the loss, the
+    best validation PSNR-fg and the time left: the step rate's estimate, or the time budget's
+    end when that comes first. Scoring is shown once the method is done (the filters beside a
+    learned method are scored before it starts, within its caching phase).
+
+    Args:
+        enabled: False: draw nothing.
+        views: the views of Q.
+        learned: the job's method is learned (steps follow the caching).
+    """
+
+    FORMAT = "{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]"
+
+    def __init__(self, enabled: bool = True, views: int = 0, learned: bool = True):
+        from tqdm import tqdm
+
+        self.bar = tqdm(
+            total=views,
+            desc="caching views",
+            unit="view",
+            bar_format=self.FORMAT,
+            disable=not enabled,
+            leave=False,
+            dynamic_ncols=True,
+        )
+        self.views = views
+        self.deadline: float | None = None
+        self.phase = "caching"
+        self.learned = learned
+        self.first_step: tuple[float, int] | None = None
+
+    def write(self, text: str) -> None:
+        """Print a line to stderr without breaking the bar."""
+        self.bar.write(text, file=sys.stderr)
+
+    def stage(self, what: str, done: int, total: int) -> None:
+        """Counts the views of Q while they are cached, then the scored outputs."""
+        if what == "caching Q":
+            self.bar.n = done
+            self.bar.refresh()
+        elif what.startswith("scoring") and (self.phase == "done" or not self.learned):
+            self.scoring(done, total)
+
+    def scoring(self, done: int, total: int) -> None:
+        bar = self.bar
+        if self.phase != "scoring":
+            self.phase = "scoring"
+            bar.set_description_str("scoring on Q", refresh=False)
+            bar.set_postfix_str("", refresh=False)
+            bar.unit = "step"
+            bar.reset(total=total)
+        bar.n = done
+        bar.refresh()
+
+    def method_started(self, name: str, scale: int, time_budget: float | None) -> None:
+        """A learned method starts now; its budget, if any, ends ``time_budget`` s later."""
+        if time_budget is None:
+            return
+        self.deadline = time.perf_counter() + time_budget
+        self.bar.set_postfix_str("method set-up", refresh=True)
+
+    def on_event(self, event: ProgressEvent) -> None:
+        """Receives the method's :class:`ProgressEvent` reports."""
+        bar = self.bar
+        if event.phase == "caching":
+            bar.total = self.views + event.total
+            bar.n = self.views + event.done
+            if event.done == event.total:
+                bar.set_postfix_str("texture taps and first validation", refresh=False)
+            bar.refresh()
+            return
+        if event.phase == "done":
+            self.phase = "done"
+            return
+        if self.phase == "caching":
+            self.phase = "steps"
+            bar.set_description_str("optimising", refresh=False)
+            bar.set_postfix_str("", refresh=False)
+            bar.unit = "step"
+            bar.reset(total=event.total_steps)
+            self.first_step = (time.perf_counter(), event.step)
+        bar.n = event.step
+        postfix = []
+        if math.isfinite(event.loss):
+            postfix.append(f"loss {event.loss:.3g}")
+        if math.isfinite(event.best_psnr):
+            postfix.append(f"best PSNR-fg {event.best_psnr:.2f} dB")
+        left = self.time_left(event)
+        if left is not None:
+            postfix.append(f"left {_clock(left)}")
+        bar.set_postfix_str(", ".join(postfix), refresh=False)
+        bar.refresh()
+
+    def time_left(self, event: ProgressEvent) -> float | None:
+        """Seconds to the step limit at the current rate, or to the budget's end if sooner."""
+        estimates = []
+        if self.first_step is not None and event.step > self.first_step[1]:
+            began, first = self.first_step
+            rate = (time.perf_counter() - began) / (event.step - first)
+            estimates.append(rate * (event.total_steps - event.step))
+        if self.deadline is not None:
+            estimates.append(max(self.deadline - time.perf_counter(), 0.0))
+        return min(estimates) if estimates else None
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def _clock(seconds: float) -> str:
+    minutes, seconds = divmod(int(round(seconds)), 60)
+    return f"{minutes}:{seconds:02d}"
+
+
+@contextlib.contextmanager
+def stop_on_interrupt(controller: Controller, say) -> Iterator[None]:
+    """While active, a first SIGINT asks ``controller`` to stop; a second one aborts.
+
+    Only the main thread can take signals; elsewhere (e.g. a GUI worker) this does nothing and
+    the caller stops the controller itself.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    presses = 0
+
+    def handler(signum, frame):
+        nonlocal presses
+        presses += 1
+        if presses > 1:
+            raise KeyboardInterrupt
+        controller.stop()
+        say(
+            "stopping: the best result so far will be written once the current phase ends "
+            "(view caching cannot be cut short); Ctrl-C again to abort"
+        )
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+class CompareProgress(JobObserver):
+    """A tqdm bar over a comparison's units of work (total set on the first report)."""
+
+    def __init__(self, bar: Any, prefix: str = ""):
+        self.bar = bar
+        self.prefix = prefix
+
+    def stage(self, what: str, done: int, total: int) -> None:
+        if what == "caching Q":  # views, not units of work: shown beside the bar
+            self.bar.set_postfix_str(f"{self.prefix}caching Q: {done}/{total} views")
+            return
+        self.bar.total = total
+        self.bar.n = done
+        self.bar.set_postfix_str(self.prefix + what, refresh=False)
+        self.bar.refresh()

@@ -1,0 +1,185 @@
+"""Joining the parts of a loaded scene into one welded :class:`~geoscaler.mesh.TexturedMesh`.
+
+The format readers (:mod:`geoscaler.io.obj`, :mod:`geoscaler.io.gltf`) turn a file into placed
+parts (:class:`Part`) and material builders; :func:`assemble` joins them, keeps the materials
+the faces use, welds vertices by exact (position, UV) and points by exact position, and takes
+normals from the file where it has them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+import trimesh
+
+from geoscaler.errors import GeoscalerError
+from geoscaler.mesh import (
+    Material,
+    TexturedMesh,
+    compute_vertex_normals,
+    first_occurrence_groups,
+    normalize_rows,
+)
+
+
+class Part(NamedTuple):
+    """One placed geometry of a trimesh scene, in world space."""
+
+    positions: np.ndarray  # (n, 3) float64
+    faces: np.ndarray  # (m, 3) int64
+    uvs: np.ndarray | None  # (n, 2) float64
+    normals: np.ndarray | None  # (n, 3) float64, from the file
+    material: int | None  # index into the loader's material list; None: no material
+
+
+MaterialBuilder = Callable[[], Material]
+"""Builds one material of the file; called only for materials that faces use."""
+
+
+def scene_parts(scene: trimesh.Scene, material_of: Callable[[Any], int | None]) -> list[Part]:
+    """Every triangle geometry of ``scene`` placed by its node transform."""
+    parts = []
+    for node in scene.graph.nodes_geometry:
+        transform, name = scene.graph[node]
+        geometry = scene.geometry[name]
+        if isinstance(geometry, trimesh.Trimesh) and len(geometry.faces):
+            parts.append(place(geometry, np.asarray(transform, dtype=np.float64), material_of))
+    return parts
+
+
+def place(
+    geometry: trimesh.Trimesh, transform: np.ndarray, material_of: Callable[[Any], int | None]
+) -> Part:
+    """Apply a 4x4 transform to a trimesh geometry and read its UVs and file normals."""
+    linear = transform[:3, :3]
+    positions = np.asarray(geometry.vertices, dtype=np.float64) @ linear.T + transform[:3, 3]
+    faces = np.asarray(geometry.faces, dtype=np.int64)
+    if np.linalg.det(linear) < 0:
+        faces = faces[:, ::-1]
+    uvs = getattr(geometry.visual, "uv", None)
+    if uvs is not None and np.shape(uvs) != (len(positions), 2):
+        uvs = None
+    normals = None
+    # trimesh caches normals given by the file; asking for them otherwise computes them.
+    if "vertex_normals" in geometry._cache and abs(np.linalg.det(linear)) > 0:
+        normals = np.asarray(geometry.vertex_normals, dtype=np.float64) @ np.linalg.inv(linear)
+    material = getattr(geometry.visual, "material", None)
+    return Part(positions, faces, uvs, normals, material_of(material))
+
+
+def assemble(
+    path: Path, parts: list[Part], builders: list[MaterialBuilder], files: list[Path]
+) -> TexturedMesh:
+    """Join placed parts into one welded TexturedMesh with the materials the faces use.
+
+    Parameters
+    ----------
+    path : Path
+        The mesh file: ``source_path``, and the start of every message.
+    parts : list of Part
+        Placed geometries; ``Part.material`` indexes ``builders`` (None: no material).
+    builders : list of MaterialBuilder
+        The file's materials, in file order; only those the faces use are built.
+    files : list of Path
+        Every file read (``source_files``; duplicates are dropped).
+
+    Raises
+    ------
+    GeoscalerError
+        No triangles, no base-colour texture at all, textured faces without UVs, NaN or
+        infinite positions or UVs.
+    """
+    if not parts:
+        raise GeoscalerError(f"{path}: contains no triangles; GeoScaler needs a triangle mesh")
+    used = sorted({p.material for p in parts if p.material is not None})
+    slot = {m: i for i, m in enumerate(used)}
+    materials = [builders[m]() for m in used]
+    if any(p.material is None for p in parts):
+        slot[None] = len(materials)
+        materials.append(Material("default", None))
+    _check_textures(path, parts, materials, slot)
+    parts = sorted(parts, key=lambda p: slot[p.material])
+    positions, uvs, normals, faces, face_material = _concatenate(parts, slot)
+    _check_finite(path, positions, uvs)
+    group, first = first_occurrence_groups(np.concatenate([positions, uvs], axis=1))
+    faces = group[faces]
+    keep = np.zeros(len(first), dtype=bool)
+    keep[faces] = True
+    renumber = np.cumsum(keep) - 1
+    faces, first = renumber[faces], first[keep]
+    positions, uvs = positions[first], uvs[first]
+    vertex_to_point, _ = first_occurrence_groups(positions)
+    file_normals = _merge_normals(normals, group, keep)
+    computed = compute_vertex_normals(positions, faces, vertex_to_point)
+    has = np.isfinite(file_normals).all(axis=1)
+    return TexturedMesh(
+        positions=positions,
+        faces=faces.astype(np.int64),
+        uvs=uvs,
+        normals=np.where(has[:, None], file_normals, computed).astype(np.float32),
+        vertex_to_point=vertex_to_point,
+        face_material=face_material,
+        materials=materials,
+        source_path=path,
+        source_files=list(dict.fromkeys(files)),
+    )
+
+
+def _check_textures(path: Path, parts: list[Part], materials: list[Material], slot) -> None:
+    if all(m.base_color_texture is None for m in materials):
+        raise GeoscalerError(
+            f"{path}: none of its materials has a base-colour texture (map_Kd in the MTL, "
+            "baseColorTexture in glTF), so there is nothing to downsample. Assign an image "
+            "texture to the mesh's material and re-export."
+        )
+    for part in parts:
+        material = materials[slot[part.material]]
+        if part.uvs is None and material.base_color_texture is not None:
+            raise GeoscalerError(
+                f"{path}: faces with the textured material {material.name!r} have no texture "
+                "coordinates (vt in OBJ, TEXCOORD_0 in glTF). UV-unwrap the mesh and re-export."
+            )
+
+
+def _concatenate(parts: list[Part], slot: dict) -> tuple[np.ndarray, ...]:
+    """Stack parts: float32 positions/uvs, float64 normals (NaN where the file has none)."""
+    offsets = np.cumsum([0] + [len(p.positions) for p in parts])
+    positions = np.concatenate([p.positions for p in parts]).astype(np.float32)
+    uvs = np.concatenate(
+        [p.uvs if p.uvs is not None else np.zeros((len(p.positions), 2)) for p in parts]
+    ).astype(np.float32)
+    normals = np.concatenate(
+        [p.normals if p.normals is not None else np.full((len(p.positions), 3), np.nan)
+         for p in parts]
+    )  # fmt: skip
+    faces = np.concatenate([p.faces + o for p, o in zip(parts, offsets, strict=False)])
+    face_material = np.concatenate(
+        [np.full(len(p.faces), slot[p.material], dtype=np.int64) for p in parts]
+    )
+    return positions, uvs, normals, faces, face_material
+
+
+def _check_finite(path: Path, positions: np.ndarray, uvs: np.ndarray) -> None:
+    if not (np.isfinite(positions).all() and np.isfinite(uvs).all()):
+        raise GeoscalerError(
+            f"{path}: has NaN or infinite vertex positions or UVs; repair the mesh and re-export"
+        )
+
+
+def _merge_normals(normals: np.ndarray, group: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Average the file normals of the rows welded into each kept vertex (NaN: none)."""
+    has = np.isfinite(normals).all(axis=1)
+    unit = np.zeros_like(normals)
+    unit[has] = normalize_rows(normals[has], np.zeros(3))
+    count = len(keep)
+    summed = np.stack(
+        [np.bincount(group[has], weights=unit[has, k], minlength=count) for k in range(3)], axis=1
+    )
+    length = np.linalg.norm(summed, axis=1)
+    merged = np.full((count, 3), np.nan)
+    good = length > 1e-12
+    merged[good] = summed[good] / length[good, None]
+    return merged[keep]

@@ -1,0 +1,47 @@
+"""Loading a mesh file: the format is chosen by suffix, every failure is a ``GeoscalerError``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from geoscaler.errors import GeoscalerError
+from geoscaler.mesh import TexturedMesh
+
+from .assemble import assemble
+from .gltf import load_gltf
+from .obj import load_obj
+from .paths import FORMAT_NAMES, check_suffix
+
+
+def load_mesh(path: str | Path) -> TexturedMesh:
+    """Load an OBJ (+ MTL), glTF or GLB file as one :class:`TexturedMesh`.
+
+    Scene-graph transforms are applied (mirroring ones flip the winding back to CCW), every
+    part is joined, vertices are welded by exact (position, UV) and points by exact position.
+    Normals come from the file where it has them, else they are area-weighted over the welded
+    points. Only materials used by faces are kept, grouped in file order, faces sorted by
+    material. Only files inside the mesh's folder are read.
+
+    Raises
+    ------
+    GeoscalerError
+        Missing, unreadable or corrupt file, unsupported format, a referenced file missing or
+        outside the mesh's folder, no UVs on textured faces, no base-colour texture at all.
+    """
+    path = Path(path)
+    suffix = check_suffix(path)
+    if not path.is_file():
+        raise GeoscalerError(f"{path}: no such file. Check the path and the file name.")
+    loader = load_obj if suffix == ".obj" else load_gltf
+    try:
+        return assemble(path, *loader(path))
+    except GeoscalerError as exc:
+        if str(path) in str(exc):
+            raise
+        raise GeoscalerError(f"{path}: {exc}") from exc  # a problem in its MTL
+    except Exception as exc:
+        raise GeoscalerError(
+            f"{path}: could not be read as {FORMAT_NAMES[suffix]} "
+            f"({type(exc).__name__}: {exc}). The file may be corrupt or truncated: "
+            "re-export it from your 3D tool."
+        ) from exc

@@ -1,0 +1,291 @@
+"""Wavefront OBJ: the OBJ + MTL reader and the OBJ + MTL + PNG writer.
+
+Reading: the MTL libraries are parsed here (colours, dissolve, the base-colour, normal and
+emissive maps, each resolved inside the mesh's folder); trimesh reads the geometry and groups
+faces by material name. Writing: MTL holds base colour, normal and emissive maps
+(:data:`MTL_SLOT_KEYWORDS`); ``map_Kd`` is the colour, so a base-colour factor other than 1 is
+baked into the written texture by :mod:`geoscaler.io.save`.
+"""
+
+from __future__ import annotations
+
+import io
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import trimesh
+
+from geoscaler.errors import GeoscalerError
+from geoscaler.mesh import Material, TexturedMesh
+
+from .assemble import MaterialBuilder, Part, scene_parts
+from .images import decode_texture, open_image
+from .paths import ConstantResolver, resolve_reference
+
+if TYPE_CHECKING:
+    from .save import ImageOut
+
+# ----------------------------------------------------------------------------- reading
+
+
+@dataclass
+class _MtlEntry:
+    """What GeoScaler reads from one ``newmtl`` block."""
+
+    name: str
+    owner: Path
+    diffuse: tuple[float, float, float] | None = None
+    dissolve: float | None = None
+    emissive: tuple[float, float, float] | None = None
+    maps: dict[str, Path] = field(default_factory=dict)
+
+
+# MTL keywords of the maps GeoScaler keeps, by slot; the first one found wins.
+_MTL_MAPS = {
+    "map_kd": "baseColorTexture",
+    "norm": "normalTexture",
+    "map_bump": "normalTexture",
+    "bump": "normalTexture",
+    "map_ke": "emissiveTexture",
+}
+# Options of MTL map statements and how many values they take (-o/-s/-t: up to three).
+_MTL_OPTIONS = {
+    "-blendu": 1, "-blendv": 1, "-boost": 1, "-mm": 2, "-o": 3, "-s": 3, "-t": 3,
+    "-texres": 1, "-clamp": 1, "-bm": 1, "-imfchan": 1, "-type": 1, "-cc": 1,
+}  # fmt: skip
+_OBJ_TAG = "geoscaler_index"
+
+
+def load_obj(path: Path) -> tuple[list[Part], list[MaterialBuilder], list[Path]]:
+    """Read an OBJ file and its MTL libraries, for :func:`geoscaler.io.assemble.assemble`.
+
+    Returns
+    -------
+    parts : list of Part
+        The placed geometries; ``Part.material`` indexes ``builders``.
+    builders : list of MaterialBuilder
+        One per MTL material (the last definition of a name wins), decoding its maps.
+    files : list of Path
+        The OBJ, the MTL libraries and every map they reference, resolved.
+    """
+    root = path.parent.resolve()
+    data = path.read_bytes()
+    libraries = _obj_libraries(_decode_text(data), path, root)
+    entries: dict[str, _MtlEntry] = {}
+    for library in libraries:
+        for entry in _parse_mtl(library, root):
+            entries[entry.name] = entry
+    ordered = list(entries.values())
+    # trimesh only needs the names to group faces; a tag tells its materials apart.
+    names_only = "".join(f"newmtl {e.name}\n{_OBJ_TAG} {i}\n" for i, e in enumerate(ordered))
+    resolver = ConstantResolver(names_only.encode())
+    scene = trimesh.load_scene(io.BytesIO(data), file_type="obj", resolver=resolver, process=False)
+    parts = scene_parts(scene, _obj_material_index)
+    builders = [lambda e=entry: _obj_material(e) for entry in ordered]
+    files = [path.resolve(), *libraries, *(p for e in ordered for p in e.maps.values())]
+    return parts, builders, files
+
+
+def _decode_text(data: bytes) -> str:
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        return data.decode("latin-1")
+
+
+def _obj_material_index(material: Any) -> int | None:
+    tag = (getattr(material, "kwargs", None) or {}).get(_OBJ_TAG)
+    return int(tag[0]) if tag else None
+
+
+def _obj_libraries(text: str, path: Path, root: Path) -> list[Path]:
+    """The MTL files named by ``mtllib`` lines (one name with spaces, or several names)."""
+    libraries: list[Path] = []
+    for line in text.splitlines():
+        words = line.split(None, 1)
+        if len(words) < 2 or words[0] != "mtllib":
+            continue
+        rest = words[1].strip()
+        names = [rest] if (path.parent / rest).is_file() else rest.split()
+        for name in names:
+            library = resolve_reference(name, path.parent, root, path, "material library")
+            if library not in libraries:
+                libraries.append(library)
+    return libraries
+
+
+def _parse_mtl(library: Path, root: Path) -> list[_MtlEntry]:
+    """Read the materials of an MTL file; ``Tr`` is ignored (MeshLab writes ``Tr 1`` opaque)."""
+    entries: list[_MtlEntry] = []
+    for line in _decode_text(library.read_bytes()).splitlines():
+        words = line.strip().split(None, 1)
+        if len(words) < 2 or words[0].startswith("#"):
+            continue
+        key, rest = words[0].lower(), words[1].strip()
+        if key == "newmtl":
+            entries.append(_MtlEntry(name=" ".join(rest.split()), owner=library))
+        elif entries:
+            _read_mtl_statement(entries[-1], key, rest, root)
+    return entries
+
+
+def _read_mtl_statement(entry: _MtlEntry, key: str, rest: str, root: Path) -> None:
+    if key == "kd":
+        entry.diffuse = _mtl_color(rest)
+    elif key == "ke":
+        entry.emissive = _mtl_color(rest)
+    elif key == "d":
+        value = _mtl_color(rest)
+        entry.dissolve = None if value is None else min(max(value[0], 0.0), 1.0)
+    elif key in _MTL_MAPS and _MTL_MAPS[key] not in entry.maps:
+        slot, name = _MTL_MAPS[key], _mtl_map_file(rest)
+        base = entry.owner.parent
+        if slot == "baseColorTexture":
+            entry.maps[slot] = resolve_reference(name, base, root, entry.owner, "texture")
+            return
+        try:
+            entry.maps[slot] = resolve_reference(name, base, root, entry.owner, "texture")
+        except GeoscalerError as exc:
+            warnings.warn(f"{exc} The map is skipped.", stacklevel=6)
+
+
+def _mtl_color(rest: str) -> tuple[float, float, float] | None:
+    """``r g b`` or a single value; None for spectral/xyz forms or garbage."""
+    try:
+        values = [float(word) for word in rest.split()[:3]]
+    except ValueError:
+        return None
+    if not values:
+        return None
+    return (values[0], values[0], values[0]) if len(values) < 3 else tuple(values)
+
+
+def _mtl_map_file(rest: str) -> str:
+    """The file name of an MTL map statement, after its options (names may contain spaces)."""
+    words = rest.split()
+    i = 0
+    while i < len(words) and words[i].lower() in _MTL_OPTIONS:
+        count = _MTL_OPTIONS[words[i].lower()]
+        i += 1
+        if count == 3:
+            while count and i < len(words) - 1 and _is_number(words[i]):
+                i, count = i + 1, count - 1
+        else:
+            i += count
+    return " ".join(words[i:])
+
+
+def _is_number(word: str) -> bool:
+    try:
+        float(word)
+    except ValueError:
+        return False
+    return True
+
+
+def _obj_material(entry: _MtlEntry) -> Material:
+    """Decode an MTL entry's maps; with ``map_Kd`` the texture is the colour (factor 1)."""
+    alpha = 1.0 if entry.dissolve is None else entry.dissolve
+    texture = None
+    if "baseColorTexture" in entry.maps:
+        image = open_image(entry.maps["baseColorTexture"], entry.owner)
+        texture = decode_texture(image, str(entry.maps["baseColorTexture"]), entry.owner)
+        factor = (1.0, 1.0, 1.0, alpha)
+    else:
+        factor = (*(entry.diffuse or (1.0, 1.0, 1.0)), alpha)
+    extra = {
+        slot: open_image(file, entry.owner)
+        for slot, file in entry.maps.items()
+        if slot != "baseColorTexture"
+    }
+    normal = extra.get("normalTexture")
+    if normal is not None and normal.mode not in ("RGB", "RGBA", "P"):
+        warnings.warn(
+            f"{entry.owner}: {entry.maps['normalTexture'].name} of material {entry.name!r} is "
+            "a grey bump (height) map, not a normal map; it is not carried over.",
+            stacklevel=5,
+        )
+        del extra["normalTexture"]
+    source = trimesh.visual.material.PBRMaterial(
+        name=entry.name, emissiveFactor=entry.emissive, **extra
+    )
+    properties = {slot: {} for slot in extra}
+    if entry.emissive is not None:
+        properties["emissiveFactor"] = list(entry.emissive)
+    return Material(entry.name, texture, np.array(factor, np.float32), source, properties)
+
+
+# ----------------------------------------------------------------------------- writing
+
+MTL_SLOT_KEYWORDS = {
+    "baseColorTexture": "map_Kd",
+    "normalTexture": "norm",
+    "emissiveTexture": "map_Ke",
+}
+"""The map slots MTL can express, and their keywords; other maps are not written to OBJ."""
+
+
+def obj_files(
+    mesh: TexturedMesh, used: list[int], images: list[ImageOut], slots: dict, path: Path
+) -> dict[str, bytes]:
+    """The files of ``mesh`` saved as ``path``: PNG maps, the MTL library, the OBJ last.
+
+    ``used`` are the materials that faces use, ``images`` the maps to write and ``slots``
+    which image each ``(material, slot)`` shows (see :mod:`geoscaler.io.save`).
+    """
+    names = _unique_names([mesh.materials[m].name for m in used])
+    files = {image.name: image.png(".obj") for image in images}
+    mtl_name = path.stem + ".mtl"
+    files[mtl_name] = _mtl_text(mesh, used, names, images, slots).encode()
+    files[path.name] = _obj_text(mesh, used, names, mtl_name).encode()
+    return files
+
+
+def _unique_names(names: list[str]) -> list[str]:
+    """Material names usable in MTL: no whitespace, not empty, no duplicates."""
+    out: list[str] = []
+    for i, name in enumerate(names):
+        clean = "_".join(name.split()) or f"material_{i}"
+        candidate, k = clean, 1
+        while candidate in out:
+            candidate, k = f"{clean}_{k}", k + 1
+        out.append(candidate)
+    return out
+
+
+def _obj_text(mesh: TexturedMesh, used: list[int], names: list[str], mtl_name: str) -> str:
+    out = io.StringIO()
+    out.write(f"# written by GeoScaler\nmtllib {mtl_name}\n")
+    np.savetxt(out, mesh.positions.astype(np.float64), fmt="v %.9g %.9g %.9g")
+    np.savetxt(out, mesh.uvs.astype(np.float64), fmt="vt %.9g %.9g")
+    np.savetxt(out, mesh.normals.astype(np.float64), fmt="vn %.9g %.9g %.9g")
+    corner = "%d/%d/%d"
+    for m, name in zip(used, names, strict=True):
+        out.write(f"usemtl {name}\n")
+        faces = mesh.faces[mesh.face_material == m] + 1
+        np.savetxt(out, np.repeat(faces, 3, axis=1), fmt=f"f {corner} {corner} {corner}")
+    return out.getvalue()
+
+
+def _mtl_text(
+    mesh: TexturedMesh, used: list[int], names: list[str], images: list[ImageOut], slots: dict
+) -> str:
+    lines = ["# written by GeoScaler"]
+    for m, name in zip(used, names, strict=True):
+        material = mesh.materials[m]
+        factor = np.asarray(material.base_color_factor, dtype=np.float64)
+        textured = (m, "baseColorTexture") in slots
+        diffuse = (1.0, 1.0, 1.0) if textured else factor[:3]
+        lines += ["", f"newmtl {name}", "Kd {:.9g} {:.9g} {:.9g}".format(*diffuse)]
+        if factor[3] != 1:
+            lines.append(f"d {factor[3]:.9g}")
+        emissive = getattr(material.source, "emissiveFactor", None)
+        if emissive is not None:
+            lines.append("Ke {:.9g} {:.9g} {:.9g}".format(*np.asarray(emissive).reshape(3)))
+        for slot, keyword in MTL_SLOT_KEYWORDS.items():
+            if (m, slot) in slots:
+                lines.append(f"{keyword} {images[slots[(m, slot)]].name}")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,186 @@
+"""Path safety: which files GeoScaler reads, and which it agrees to write.
+
+Reading: a mesh may only reference files inside its own folder (:func:`resolve_reference`), and
+trimesh reads through resolvers that serve those files and never write.
+
+Writing: :func:`check_outputs` is the one output-safety check, used by
+:func:`geoscaler.io.save_mesh` and by every command before it starts work. It refuses writing
+over an input file, an existing output without ``force``, a missing folder and a folder that is
+not writable, one message per mistake. :func:`prepare_folder` creates an output folder.
+"""
+
+from __future__ import annotations
+
+import os
+import urllib.parse
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import trimesh
+
+from geoscaler.errors import GeoscalerError
+
+SUPPORTED_SUFFIXES = (".obj", ".gltf", ".glb")
+"""Mesh file types GeoScaler reads and writes."""
+FORMAT_NAMES = {".obj": "Wavefront OBJ", ".gltf": "glTF 2.0", ".glb": "binary glTF (GLB)"}
+
+
+def check_suffix(path: Path) -> str:
+    """The lower-case suffix of a mesh file name; ``GeoscalerError`` when not supported."""
+    suffix = path.suffix.lower()
+    if suffix not in SUPPORTED_SUFFIXES:
+        raise GeoscalerError(
+            f"{path}: unsupported file type {suffix or '(none)'!r}. GeoScaler reads and writes "
+            f"{', '.join(SUPPORTED_SUFFIXES)}; convert the mesh to one of them (e.g. in Blender)."
+        )
+    return suffix
+
+
+# ----------------------------------------------------------------------------- reading
+
+
+def resolve_reference(ref: str, base: Path, root: Path, owner: Path, what: str) -> Path:
+    """Resolve a file reference written in ``owner``; it must stay inside ``root``.
+
+    ``base`` is the folder relative references start from. Windows separators are accepted.
+    Symbolic links are followed before the check, so a link out of the folder is refused too.
+    """
+    clean = ref.strip()
+    if not clean:
+        raise GeoscalerError(f"{owner}: an empty {what} reference; fix it in {owner.name}")
+    if "://" in clean:
+        raise GeoscalerError(
+            f"{owner}: {what} {clean!r} is a URL; GeoScaler reads local files only. "
+            f"Download it into {root} and reference it by a relative path."
+        )
+    candidates = [clean] + ([clean.replace("\\", "/")] if "\\" in clean else [])
+    target = base
+    for candidate in candidates:
+        target = (base / candidate).resolve()
+        if not target.is_relative_to(root):
+            raise GeoscalerError(
+                f"{owner}: {what} {clean!r} points outside the mesh's folder {root} "
+                f"(to {target}). GeoScaler reads only files inside that folder: copy the "
+                "file there and reference it by a relative path."
+            )
+        if target.is_file():
+            return target
+    raise GeoscalerError(
+        f"{owner}: {what} {clean!r} was not found (looked for {target}). Put the file "
+        f"there or correct the reference in {owner.name}."
+    )
+
+
+class ReadOnlyResolver(trimesh.resolvers.Resolver):
+    """A trimesh resolver that never writes."""
+
+    def write(self, name: str, data: Any) -> None:
+        raise GeoscalerError("reading a mesh never writes files")
+
+    def namespaced(self, namespace: str) -> ReadOnlyResolver:
+        return self
+
+    def keys(self) -> list[str]:
+        return []
+
+
+class FolderResolver(ReadOnlyResolver):
+    """Serves only files inside the mesh's folder; glTF URIs are percent-decoded."""
+
+    def __init__(self, owner: Path, root: Path):
+        self.owner, self.root = owner, root
+
+    def get(self, name: str) -> bytes:
+        ref = urllib.parse.unquote(name)
+        target = resolve_reference(ref, self.owner.parent, self.root, self.owner, "file")
+        return target.read_bytes()
+
+
+class ConstantResolver(ReadOnlyResolver):
+    """Serves the same bytes whatever is asked: the material library trimesh's OBJ reader wants."""
+
+    def __init__(self, data: bytes):
+        self.data = data
+
+    def get(self, name: str) -> bytes:
+        return self.data
+
+
+# ----------------------------------------------------------------------------- writing
+
+
+def check_outputs(
+    paths: Iterable[str | Path], *, force: bool, inputs: Iterable[str | Path] = ()
+) -> list[Path]:
+    """Refuse, before any work is done, output files that cannot or must not be written.
+
+    Refused, with a :class:`GeoscalerError` that says what to do:
+
+    - an output that is one of ``inputs`` (the same path once links are resolved, or the same
+      file under another name), even with ``force``;
+    - an output that is a folder;
+    - outputs that exist (all of them named) unless ``force``;
+    - an output whose folder is missing or not writable.
+
+    Parameters
+    ----------
+    paths : iterable of str or Path
+        Every file about to be written (e.g. :func:`geoscaler.io.output_files`).
+    force : bool
+        Replace existing outputs (``--force`` on the command line, ``overwrite`` in Python).
+    inputs : iterable of str or Path
+        Files the outputs are made from (e.g. ``TexturedMesh.source_files``).
+
+    Returns
+    -------
+    list of Path
+        ``paths``, in order.
+    """
+    targets = [Path(p) for p in paths]
+    sources = [Path(p).resolve() for p in inputs]
+    for target in targets:
+        same = target.resolve() in sources or (
+            target.exists() and any(s.exists() and os.path.samefile(s, target) for s in sources)
+        )
+        if same:
+            raise GeoscalerError(
+                f"{target}: refusing to overwrite the input file (the mesh was read from it); "
+                "choose another output name or folder"
+            )
+        if target.is_dir():
+            raise GeoscalerError(f"{target}: is a folder; give an output file name")
+    existing = [str(t) for t in targets if t.exists() or t.is_symlink()]
+    if existing and not force:
+        one = len(existing) == 1
+        raise GeoscalerError(
+            f"{', '.join(existing)}: already exist{'s' if one else ''}; pass --force to "
+            f"replace {'it' if one else 'them'} (overwrite=True in Python), or choose another "
+            "output name"
+        )
+    last_in_folder = {target.resolve().parent: target for target in targets}
+    for folder, target in last_in_folder.items():
+        if not folder.is_dir():
+            raise GeoscalerError(f"{target}: folder {folder} does not exist; create it first")
+        if not os.access(folder, os.W_OK):
+            raise GeoscalerError(
+                f"{target}: folder {folder} is not writable; choose another output folder"
+            )
+    return targets
+
+
+def check_output(path: str | Path, *, force: bool, inputs: Iterable[str | Path] = ()) -> Path:
+    """:func:`check_outputs` for one file; returns it as a Path."""
+    return check_outputs([path], force=force, inputs=inputs)[0]
+
+
+def prepare_folder(path: str | Path, flag: str = "--out") -> Path:
+    """Create an output folder (and parents) or explain, as ``flag``, why it cannot be."""
+    folder = Path(path)
+    if folder.exists() and not folder.is_dir():
+        raise GeoscalerError(f"{flag} {folder}: is a file; give a folder for the outputs")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise GeoscalerError(f"{flag} {folder}: cannot create the folder ({error})") from error
+    return folder

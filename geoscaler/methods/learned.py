@@ -1,0 +1,88 @@
+"""What every learned method does around the optimisation loop, once: take the job's renderer
+and cached Q (or make them), build the loop's settings from the options, run
+:func:`geoscaler.optimize.optimize` under the time left, and return 8-bit textures with the
+loop's facts for the report."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from geoscaler.filters import output_sizes
+from geoscaler.mesh import TexturedMesh
+from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext
+from geoscaler.optimize import Model, OptimizeConfig, PerceptualTerm, optimize
+from geoscaler.protocol import VALIDATION_DISTANCE
+from geoscaler.render import Renderer
+from geoscaler.texture import linear_to_texture
+from geoscaler.views import ViewCache, cache_view_set
+
+
+def method_renderer(mesh: TexturedMesh, options: MethodOptions, context: RunContext) -> Renderer:
+    """The job's renderer of ``mesh``, or a protocol one on ``options.device``."""
+    return context.renderer or Renderer(mesh, options.device)
+
+
+def loop_config(
+    defaults: Mapping[str, Any], options: MethodOptions, context: RunContext
+) -> OptimizeConfig:
+    """The loop's settings: the method's ``defaults`` (``steps`` included), overridden by
+    ``options.settings["optimize"]``, then by the user's steps, the time left and the seed."""
+    settings = {**defaults, **options.settings.get("optimize", {})}
+    settings["steps"] = options.steps or settings["steps"]
+    return OptimizeConfig(time_budget=context.time_budget, seed=options.seed, **settings)
+
+
+def fit(
+    mesh: TexturedMesh,
+    scale: int,
+    renderer: Renderer,
+    model: Model,
+    config: OptimizeConfig,
+    context: RunContext,
+    started: float,
+    keeps_uvs: bool = True,
+    perceptual: PerceptualTerm | None = None,
+    details: Mapping[str, Any] | None = None,
+) -> MethodResult:
+    """Optimise ``model`` and return its best validated candidate as 8-bit textures (and UVs).
+
+    Args:
+        mesh, scale: the job.
+        renderer: the mesh's renderer.
+        model: the candidate's parameters.
+        config: the loop's settings.
+        context: validation views, controller and progress callback of the job.
+        started: the ``time.perf_counter()`` of the method's start (its set-up counts).
+        keeps_uvs: the model never moves the UVs (texture taps can be cached).
+        perceptual: an extra loss term.
+        details: the method's own facts for the report, listed before the loop's.
+    """
+    validation = context.validation or cache_q(renderer, mesh, scale)
+    result = optimize(
+        renderer,
+        model,
+        config,
+        validation,
+        on_event=context.on_event,
+        controller=context.controller,
+        keeps_uvs=keeps_uvs,
+        perceptual=perceptual,
+        started_at=started,
+    )
+    textures = [None if t is None else linear_to_texture(t) for t in result.textures]
+    uvs = None if result.uvs is None else result.uvs.detach().cpu().numpy().astype("float32")
+    facts = {
+        "device": str(renderer.device),
+        **(details or {}),
+        "steps": result.steps,
+        "best_step": result.best_step,
+        "validation_psnr_fg": result.best_psnr,
+        "stopped_by": result.stopped_by,
+    }
+    return MethodResult(textures, uvs, details=facts)
+
+
+def cache_q(renderer: Renderer, mesh: TexturedMesh, scale: int) -> ViewCache:
+    """The validation set Q with the taps of the method's output sizes (when no job gave it)."""
+    return cache_view_set(renderer, VALIDATION_DISTANCE, output_sizes(mesh, scale))

@@ -1,0 +1,160 @@
+"""The registry of downsampling methods: what a method is, what it is handed, what it returns.
+
+A method takes a mesh and an integer scale and returns 8-bit textures ``scale`` times smaller
+(one per textured material) and, if it moves them, new UVs. Every method starts from the
+protocol's reference maps (:func:`geoscaler.filters.reference_textures`). A *learned* method
+optimises through the renderer: it takes steps, a time budget and a run context from the job;
+a filter ignores them.
+
+This module imports no method: the package :mod:`geoscaler.methods` imports each method module,
+and each registers itself here.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from geoscaler.errors import GeoscalerError
+from geoscaler.mesh import TexturedMesh
+from geoscaler.optimize import Controller, ProgressEvent
+from geoscaler.render import Renderer
+from geoscaler.views import ViewCache
+
+
+@dataclass(frozen=True)
+class MethodOptions:
+    """What the user chose for a method; filters ignore all of it.
+
+    Attributes:
+        device: ``"auto"``, ``"cpu"`` or ``"cuda"``.
+        seed: random seed; on the CPU the same seed gives the same result (on CUDA, atomic
+            additions may change the last bits).
+        steps: optimisation steps (None: the method's default).
+        time_budget: wall-clock seconds the job may spend (None: no limit).
+        settings: method-specific settings, e.g. the network's ``variant``, ``preset`` and
+            ``vgg19``, or ``optimize`` (:class:`~geoscaler.optimize.OptimizeConfig` overrides).
+    """
+
+    device: str = "auto"
+    seed: int = 0
+    steps: int | None = None
+    time_budget: float | None = None
+    settings: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class RunContext:
+    """What the job hands a method besides its options.
+
+    Attributes:
+        renderer: the mesh's renderer, whose ``evaluation`` says the image size, supersampling
+            and views (None: the method makes a protocol-1 one on ``options.device``).
+        validation: Q, cached with the texture taps of the output sizes (None: the method
+            caches it).
+        controller: pauses or stops the method from another thread.
+        on_event: receives the optimisation loop's progress events.
+        time_budget: seconds the method may still spend: the job's budget less what the job
+            spent before it (None: no limit).
+    """
+
+    renderer: Renderer | None = None
+    validation: ViewCache | None = None
+    controller: Controller | None = None
+    on_event: Callable[[ProgressEvent], None] | None = None
+    time_budget: float | None = None
+
+
+@dataclass
+class MethodResult:
+    """What a method produced.
+
+    Attributes:
+        textures: per material, the ``(h, w, C)`` uint8 sRGB texture (None if untextured).
+        uvs: ``(V, 2)`` float32 new UVs, or None when the method keeps the mesh's own.
+        seconds: wall-clock time of the method (the job adds what it spent for it).
+        details: method-specific facts for the report (steps run, device, ...).
+    """
+
+    textures: list[np.ndarray | None]
+    uvs: np.ndarray | None = None
+    seconds: float = 0.0
+    details: dict[str, Any] = field(default_factory=dict)
+
+
+Run = Callable[[TexturedMesh, int, MethodOptions, RunContext], MethodResult]
+
+
+@dataclass(frozen=True)
+class Method:
+    """A registered method.
+
+    Attributes:
+        name: the name users type (``--method``, ``--methods``).
+        run: the implementation.
+        learned: optimises through the renderer (steps, budget, progress) or is a filter.
+        settings: fixed settings merged into the options (aliases such as ``geoscaler-base``).
+    """
+
+    name: str
+    run: Run
+    learned: bool
+    settings: Mapping[str, Any] = field(default_factory=dict)
+
+
+_METHODS: dict[str, Method] = {}
+
+
+def register(name: str, run: Run, *, learned: bool, settings: Mapping[str, Any] | None = None):
+    """Add a method (or, with ``settings``, an alias that runs ``run`` with them)."""
+    _METHODS[name] = Method(name, run, learned, dict(settings or {}))
+
+
+def unregister(name: str) -> None:
+    """Remove a method (e.g. one a test registered); unknown names are ignored."""
+    _METHODS.pop(name, None)
+
+
+def method_names(aliases: bool = True) -> list[str]:
+    """Registered names in registration order (without aliases: the methods themselves)."""
+    return [name for name, m in _METHODS.items() if aliases or not m.settings]
+
+
+def get_method(name: str) -> Method:
+    """The method called ``name``; an unknown name raises a :class:`GeoscalerError` that lists
+    the known ones."""
+    if name not in _METHODS:
+        known = ", ".join(method_names())
+        raise GeoscalerError(f"unknown method {name!r}; choose one of: {known}")
+    return _METHODS[name]
+
+
+def is_learned(name: str) -> bool:
+    """Whether ``name`` optimises (steps, time budget, progress events) or is a filter."""
+    return get_method(name).learned
+
+
+def run_method(
+    name: str,
+    mesh: TexturedMesh,
+    scale: int,
+    options: MethodOptions | None = None,
+    context: RunContext | None = None,
+) -> MethodResult:
+    """Run a registered method and time it, wall clock, set-up included.
+
+    Without a ``context`` the method gets the whole of ``options.time_budget``.
+    """
+    method = get_method(name)
+    options = options or MethodOptions()
+    if method.settings:
+        options = replace(options, settings={**options.settings, **method.settings})
+    context = context or RunContext(time_budget=options.time_budget)
+    start = time.perf_counter()
+    result = method.run(mesh, scale, options, context)
+    result.seconds = time.perf_counter() - start
+    return result

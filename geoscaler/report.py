@@ -1,0 +1,199 @@
+"""What a job shows people: tables, strict JSON, reports and comparison pictures.
+
+Rows come from :func:`geoscaler.job.compare_mesh` (keys :data:`geoscaler.job.ROW_KEYS`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from geoscaler.cameras import fibonacci_directions, validation_cameras
+from geoscaler.figures import comparison_sheet
+from geoscaler.filters import reference_textures
+from geoscaler.job import Comparison, Downsampled, Job, texture_facts
+from geoscaler.mesh import TexturedMesh
+from geoscaler.metrics import evaluate
+from geoscaler.protocol import PROTOCOL, VALIDATION_DISTANCE
+from geoscaler.render import Renderer, image_to_uint8
+from geoscaler.views import ViewSet
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` with every non-finite float replaced by None (strict JSON has no inf/nan)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {key: json_safe(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(item) for item in value]
+    return value
+
+
+def comparison_json(mesh_path: str | Path, comparison: Comparison) -> dict[str, Any]:
+    """The ``--json`` document: ``{"protocol", "mesh", "device", "results"}``, strict JSON.
+
+    Infinite PSNRs and gains (renders identical to the reference) are written as null.
+    """
+    return json_safe(
+        {
+            "protocol": PROTOCOL,
+            "mesh": str(mesh_path),
+            "device": comparison.device,
+            "results": comparison.rows,
+        }
+    )
+
+
+def dumps(document: dict[str, Any]) -> str:
+    """Strict JSON text, 2-space indented (raises on any inf/nan left)."""
+    return json.dumps(document, indent=2, allow_nan=False)
+
+
+def format_size(size: Sequence[int]) -> str:
+    """``[w, h]`` -> ``"512x512"``."""
+    return f"{size[0]}x{size[1]}"
+
+
+def format_table(rows: Sequence[dict[str, Any]]) -> str:
+    """The human table of :func:`compare_mesh` rows, one block per distance."""
+    header = (
+        f"{'method':<12} {'scale':>5} {'texture':>10} {'PSNR-fg':>8} {'PSNR-full':>9} "
+        f"{'SSIM-full':>9} {'SSIM-fg':>8} {'gain dB':>8} {'seconds':>8}"
+    )
+    lines = []
+    for distance in dict.fromkeys(row["distance"] for row in rows):
+        block = [row for row in rows if row["distance"] == distance]
+        lines += [f"distance {distance:g} ({block[0]['views']} views)", header]
+        lines += [_format_row(row) for row in block]
+        lines.append("")
+    return "\n".join(lines).rstrip()
+
+
+def _format_row(row: dict[str, Any]) -> str:
+    return (
+        f"{row['method']:<12} {'x' + str(row['scale']):>5} {format_size(row['texture_size']):>10} "
+        f"{row['psnr_fg']:>8.2f} {row['psnr_full']:>9.2f} {row['ssim_full']:>9.4f} "
+        f"{row['ssim_fg']:>8.4f} {row['gain_db']:>+8.2f} {row['seconds']:>8.2f}"
+    )
+
+
+def describe_device(device: str) -> str:
+    """``"cpu (2 threads)"`` or ``"cuda:0 (NVIDIA H100 80GB HBM3)"``: where views were rendered."""
+    if device.startswith("cuda"):
+        return f"{device} ({torch.cuda.get_device_name(torch.device(device))})"
+    threads = torch.get_num_threads()
+    return f"{device} ({threads} thread{'s' if threads > 1 else ''})"
+
+
+def pick_views(foreground: np.ndarray, count: int = 3) -> list[int]:
+    """Indices of ``count`` views that show the mesh large and from different sides.
+
+    Greedy: the view with the most foreground pixels first, then repeatedly the view farthest
+    (in direction) from those chosen, among views with at least half the largest foreground.
+
+    Args:
+        foreground: ``(N,)`` foreground pixel counts of protocol views ``0..N-1``.
+    """
+    directions = fibonacci_directions()[: len(foreground)]
+    candidates = np.flatnonzero(foreground >= 0.5 * foreground.max())
+    chosen = [int(np.argmax(foreground))]
+    while len(chosen) < min(count, len(candidates)):
+        closeness = (directions[candidates] @ directions[chosen].T).max(axis=1)
+        closeness[np.isin(candidates, chosen)] = np.inf
+        chosen.append(int(candidates[np.argmin(closeness)]))
+    return chosen
+
+
+def comparison_picture(
+    mesh: TexturedMesh,
+    comparison: Comparison,
+    scale: int,
+    methods: Sequence[str],
+    distance: float = VALIDATION_DISTANCE,
+    count: int = 3,
+    renderer: Renderer | None = None,
+) -> np.ndarray:
+    """The labelled comparison sheet of ``methods`` at ``scale``, on ``count`` protocol views.
+
+    Views are picked with :func:`pick_views` from the foreground counts measured at
+    ``distance``; see :func:`geoscaler.figures.comparison_sheet` for the layout. ``renderer``
+    as in :func:`geoscaler.job.compare_mesh` (default: a protocol one on the comparison's device).
+
+    Returns:
+        ``(H, W, 3)`` uint8 RGB.
+    """
+    counts = comparison.foreground[distance]
+    picked = [comparison.view_indices[i] for i in pick_views(counts, count)]
+    renderer = renderer or Renderer(mesh, comparison.device)
+    cameras = validation_cameras(distance)
+    view_set = ViewSet(renderer, [cameras[i] for i in picked])
+    candidates, psnr = {}, {}
+    for name in methods:
+        result = comparison.outputs[name, scale]
+        uvs = None if result.uvs is None else torch.as_tensor(result.uvs, device=renderer.device)
+        with torch.no_grad():
+            images = view_set.render(renderer.mip_textures(result.textures), uvs)
+        psnr[name] = evaluate(images, view_set.references, view_set.foreground)["psnr_fg"].tolist()
+        candidates[name] = [image_to_uint8(image) for image in images]
+    size = format_size(texture_facts(comparison.outputs[methods[0], scale].textures)[0])
+    original = format_size(texture_facts(reference_textures(mesh))[0])
+    return comparison_sheet(
+        references=[image_to_uint8(image) for image in view_set.references],
+        candidates=candidates,
+        psnr_fg=psnr,
+        foreground=list(view_set.foreground.cpu().numpy()),
+        view_titles=[f"view {i} at distance {distance:g}" for i in picked],
+        column_titles=[f"original {original}"] + [f"{n} {size}" for n in methods],
+        title=f"x{scale}: renders, zoom on the largest errors, |error| heatmap (protocol 1)",
+    )
+
+
+def report_document(job: Job, done: Downsampled, seconds: float) -> dict[str, Any]:
+    """The JSON report: protocol, files, settings, result rows and the method's details."""
+    size, _ = texture_facts(done.result.textures)
+    return json_safe(
+        {
+            "protocol": PROTOCOL,
+            "mesh": str(job.mesh_path),
+            "output": str(job.output),
+            "method": job.method,
+            "scale": job.scale,
+            "texture_size": size,
+            "device": describe_device(done.comparison.device),
+            "seconds": round(seconds, 3),
+            "results": done.rows,
+            "details": done.details,
+        }
+    )
+
+
+def format_report(document: dict[str, Any]) -> str:
+    """The printed report: a header, the protocol table and one line on how the method ran."""
+    lines = [
+        f"mesh {document['mesh']} -> {document['output']}   protocol {document['protocol']}   "
+        f"device {document['device']}",
+        format_table(document["results"]),
+    ]
+    details = document["details"]
+    if "steps" in details:
+        lines.append(
+            f"{document['method']}: {details['steps']} steps (best at step "
+            f"{details.get('best_step')}), stopped by {details.get('stopped_by')}; "
+            f"{document['seconds']:.1f} s for the whole job"
+        )
+        if details["steps"] == 0 and details.get("stopped_by") == "time budget":
+            lines.append(
+                f"note: the time budget ({details.get('time_budget')} s) ran out while the "
+                "views were being cached, so no optimisation step ran and the result is the "
+                "method's Lanczos start; give a larger --time-budget"
+            )
+    else:
+        lines.append(f"{document['seconds']:.1f} s for the whole job")
+    return "\n".join(lines)

@@ -1,0 +1,232 @@
+"""Cached views of the original, and candidates rendered and scored on them.
+
+A :class:`ViewSet` rasterises its cameras once and renders the reference images once; every
+candidate texture (and, for methods that move them, UVs) is then rendered from the same
+G-buffers. A :class:`ViewCache` adds the tap renderer: with the mesh's own UVs a pixel is a
+fixed weighted sum of texels, so each view's texture taps are found once and a render is one
+gather per material (what training steps, validation and the report's scores use). Candidates
+are scored as they would ship: 8-bit textures, compared with :func:`geoscaler.metrics.evaluate`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from geoscaler.cameras import Camera, view_set_cameras
+from geoscaler.metrics import evaluate
+from geoscaler.raster import GBuffer
+from geoscaler.render import Renderer
+from geoscaler.texture import (
+    MipLayout,
+    MipTexture,
+    UVFootprint,
+    linear_to_srgb,
+    scatter_add,
+    take,
+    texture_to_linear,
+)
+
+Progress = Callable[[int, int], None]
+"""Called as ``progress(done, total)`` while long work runs."""
+
+
+class ViewSet:
+    """G-buffers, reference renders and foreground masks of a list of cameras.
+
+    Args:
+        renderer: the renderer of the mesh under evaluation.
+        cameras: the views (e.g. :func:`geoscaler.cameras.validation_cameras`).
+        progress: optional callback while the set is built.
+        deadline: a ``time.perf_counter()`` value; cameras not cached by then are dropped
+            (keeping at least ``min_views``). For training pools under a time budget.
+
+    Attributes:
+        gbuffers: one :class:`GBuffer` per camera.
+        references: ``(N, H, W, 3)`` float32 sRGB renders with the reference textures.
+        foreground: ``(N, H, W)`` bool pixels the mesh covers.
+    """
+
+    def __init__(
+        self,
+        renderer: Renderer,
+        cameras: Sequence[Camera],
+        progress: Progress | None = None,
+        deadline: float | None = None,
+        min_views: int = 1,
+    ):
+        self.renderer = renderer
+        self.cameras = list(cameras)
+        reference = renderer.reference_textures()
+        self.gbuffers: list[GBuffer] = []
+        references, foreground = [], []
+        with torch.no_grad():
+            for index, camera in enumerate(self.cameras):
+                if deadline is not None and index >= min_views and time.perf_counter() > deadline:
+                    self.cameras = self.cameras[:index]  # out of time: keep what is cached
+                    break
+                gbuffer = renderer.rasterize(camera)
+                self.gbuffers.append(gbuffer)
+                references.append(renderer.render(gbuffer, reference))
+                foreground.append(renderer.foreground(gbuffer))
+                if progress:
+                    progress(index + 1, len(self.cameras))
+        self.references = torch.stack(references)
+        self.foreground = torch.stack(foreground)
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+    def render(
+        self,
+        textures: Sequence[MipTexture | None],
+        uvs: torch.Tensor | None = None,
+        views: Sequence[int] | None = None,
+    ) -> torch.Tensor:
+        """``(len(views), H, W, 3)`` sRGB renders of a candidate (all views by default)."""
+        views = range(len(self)) if views is None else views
+        return torch.stack([self.renderer.render(self.gbuffers[i], textures, uvs) for i in views])
+
+    def score(
+        self, textures: Sequence[np.ndarray | None], uvs: np.ndarray | None = None
+    ) -> dict[str, torch.Tensor]:
+        """Protocol metrics of 8-bit candidate textures (and UVs), each ``(N,)`` over views."""
+        mips = self.renderer.mip_textures(textures)
+        uv_tensor = None
+        if uvs is not None:
+            uv_tensor = torch.as_tensor(uvs, dtype=torch.float32, device=self.renderer.device)
+        with torch.no_grad():
+            images = self.render(mips, uv_tensor)
+            return evaluate(images, self.references, self.foreground)
+
+
+@dataclass
+class PixelTaps:
+    """A view's texture lookups for one material, folded into its pixels.
+
+    With fixed UVs a rendered pixel (before sRGB encoding) is a fixed weighted sum of texels of
+    the candidate's mip chain: its samples' trilinear taps, each weighted 1 / samples per
+    pixel. Taps of zero weight (the unused level of a magnified sample) are dropped.
+
+    Attributes:
+        pixel: ``(T,)`` int32 flat pixel index of each tap.
+        texel: ``(T,)`` int32 index into the flat mip chain.
+        weight: ``(T,)`` float32.
+    """
+
+    pixel: torch.Tensor
+    texel: torch.Tensor
+    weight: torch.Tensor
+
+
+class ViewCache:
+    """A :class:`ViewSet` plus, for models that keep the mesh's UVs, every view's texture taps
+    for candidate textures of fixed sizes, so a render is one gather per material.
+
+    Args:
+        views: cached G-buffers and reference renders.
+        sizes: per material the candidate's texture ``(h, w)`` (None: untextured).
+        with_taps: cache the taps (valid only while the UVs stay the mesh's own).
+    """
+
+    def __init__(self, views: ViewSet, sizes: Sequence[tuple[int, int] | None], with_taps: bool):
+        self.views = views
+        self.renderer = views.renderer
+        device = self.renderer.device
+        self.sizes = list(sizes)
+        self.layouts = [None if s is None else MipLayout(*s, device) for s in sizes]
+        self.taps: list[list[PixelTaps | None]] | None = None
+        self.untextured: list[torch.Tensor] | None = None
+        if with_taps:
+            with torch.no_grad():
+                self.taps = [self._taps(gbuffer) for gbuffer in views.gbuffers]
+                self.untextured = [self._untextured(gbuffer) for gbuffer in views.gbuffers]
+
+    def __len__(self) -> int:
+        return len(self.views)
+
+    def _taps(self, gbuffer: GBuffer) -> list[PixelTaps | None]:
+        footprint = self.renderer.footprint(gbuffer)
+        material = self.renderer.face_material.index_select(0, gbuffer.tri_ids)
+        pixel_of_sample = self.renderer.pixel_of_sample(gbuffer)
+        share = 1.0 / self.renderer.supersample**2
+        taps: list[PixelTaps | None] = []
+        for index, layout in enumerate(self.layouts):
+            samples = torch.nonzero(material == index).squeeze(1)
+            if layout is None or len(samples) == 0:
+                taps.append(None)
+                continue
+            part = UVFootprint(*(t[samples] for t in footprint))
+            texel, weight = layout.taps(part)  # (8, n), sample-major after the transpose
+            pixel = pixel_of_sample[samples].expand(len(texel), -1)
+            keep = weight.T != 0
+            taps.append(
+                PixelTaps(
+                    pixel.T[keep].to(torch.int32),
+                    texel.T[keep].to(torch.int32),
+                    weight.T[keep] * share,
+                )
+            )
+        return taps
+
+    def _untextured(self, gbuffer: GBuffer) -> torch.Tensor:
+        """``(3, pixels)`` linear colour contributed by samples of untextured materials."""
+        material = self.renderer.face_material.index_select(0, gbuffer.tri_ids)
+        plain = torch.tensor([layout is None for layout in self.layouts], device=material.device)
+        hit = torch.nonzero(plain[material]).squeeze(1)
+        colours = self.renderer.factors.T.index_select(1, material[hit])
+        image = colours.new_zeros(3, self.renderer.image_size**2)
+        pixels = self.renderer.pixel_of_sample(gbuffer)[hit]
+        return image.index_add(1, pixels, colours, alpha=1.0 / self.renderer.supersample**2)
+
+    def render(
+        self, view: int, textures: Sequence[torch.Tensor | None], uvs: torch.Tensor | None
+    ) -> torch.Tensor:
+        """``(H, W, 3)`` sRGB render of a candidate in cached view ``view`` (differentiable)."""
+        gbuffer = self.views.gbuffers[view]
+        if uvs is not None or self.taps is None or self.untextured is None:
+            mips = [None if t is None else MipTexture(t) for t in textures]
+            return self.renderer.render(gbuffer, mips, uvs)
+        image = self.untextured[view]
+        for index, (texture, taps) in enumerate(zip(textures, self.taps[view], strict=True)):
+            if texture is None or taps is None:
+                continue
+            texels = take(MipTexture(texture).texels, taps.texel) * taps.weight
+            lit = scatter_add(image.shape[1], taps.pixel, texels)
+            image = image + self.renderer.factors[index][:, None] * lit
+        side = self.renderer.image_size
+        return linear_to_srgb(image.T.reshape(side, side, 3))
+
+    def score(
+        self, textures: Sequence[np.ndarray | None], uvs: np.ndarray | None = None
+    ) -> dict[str, torch.Tensor]:
+        """Protocol metrics of 8-bit candidate textures (and UVs), each ``(N,)`` over views.
+
+        The same figures as :meth:`ViewSet.score` up to float rounding (about 1e-7 in the
+        renders): with the cached taps a candidate is one gather per view. Candidates of other
+        sizes or with their own UVs are rendered in full.
+        """
+        sizes = [None if t is None else tuple(t.shape[:2]) for t in textures]
+        if uvs is not None or self.taps is None or sizes != self.sizes:
+            return self.views.score(textures, uvs)
+        device = self.renderer.device
+        linear = [None if t is None else texture_to_linear(t, device) for t in textures]
+        with torch.no_grad():
+            images = torch.stack([self.render(i, linear, None) for i in range(len(self))])
+            return evaluate(images, self.views.references, self.views.foreground)
+
+
+def cache_view_set(
+    renderer: Renderer,
+    distance: float,
+    sizes: Sequence[tuple[int, int] | None],
+    progress: Progress | None = None,
+) -> ViewCache:
+    """The protocol's view set at ``distance`` (the views of ``renderer.evaluation``), cached
+    with the texture taps of candidates of ``sizes``: what validation and scoring read."""
+    views = ViewSet(renderer, view_set_cameras(distance, renderer.evaluation), progress)
+    return ViewCache(views, sizes, with_taps=True)
