@@ -1,12 +1,11 @@
 """Every argument check, in one place, with one message per mistake.
 
-(:func:`check_scale` lives with the filters, which define what a scale is, and
-:func:`check_variant` with the network method, which defines its variants; both are used from
-here like the others.)
-
 The command line, the job pipeline, ``bench`` and the app all check scales, methods, variants,
 steps, budgets, distances, seeds and devices here, before any work starts. Each check returns
 the normalised value or raises a :class:`~geoscaler.errors.GeoscalerError` naming the flag.
+:func:`check_scale` lives with the filters, which define what a scale is, and
+:func:`check_variant` / :func:`check_preset` with the network method, which defines them; they
+are used from here like the others.
 """
 
 from __future__ import annotations
@@ -21,7 +20,7 @@ import numpy as np
 from geoscaler.errors import GeoscalerError
 from geoscaler.filters import check_scale
 from geoscaler.methods import MethodOptions, is_learned, method_names
-from geoscaler.methods.network import PRESETS, check_variant
+from geoscaler.methods.network import check_preset, check_variant
 from geoscaler.protocol import VIEWS
 from geoscaler.render import resolve_device
 
@@ -128,9 +127,7 @@ def network_settings(preset: str | None = None, vgg19: str | Path | None = None)
     """The network's settings from ``--preset`` and ``--vgg19`` (absent flags: none)."""
     settings: dict[str, Any] = {}
     if preset is not None:
-        if preset not in PRESETS:
-            raise GeoscalerError(f"--preset {preset!r}: choose one of {', '.join(PRESETS)}")
-        settings["preset"] = preset
+        settings["preset"] = check_preset(preset)
     if vgg19 is not None:
         if not Path(vgg19).is_file():
             raise GeoscalerError(f"--vgg19 {vgg19}: no such file")

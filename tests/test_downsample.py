@@ -172,6 +172,8 @@ def no_work(monkeypatch):
         (["-o", "MISSING/out.glb"], "does not exist"),
         (["--steps", "0"], "--steps 0: must be at least 1"),
         (["--time-budget", "0"], "--time-budget 0"),
+        (["--time-budget", "inf"], "--time-budget inf: must be a positive number of seconds"),
+        (["--seed", "-1"], "--seed -1: must be a whole number from 0 to 4294967295"),
         (["--report", "OUT"], "is the output mesh"),
         (["--report", "MESH"], "refusing to overwrite the input file"),
         (

@@ -103,6 +103,15 @@ def check_variant(name: str) -> str:
     return name
 
 
+def check_preset(name: str) -> str:
+    """``name`` when it names a preset (the one check of ``--preset``)."""
+    if name not in PRESETS:
+        raise GeoscalerError(
+            f"--preset {name!r}: unknown preset; choose one of {', '.join(PRESETS)}"
+        )
+    return name
+
+
 class NetworkModel:
     """The loop's view of the network: its weights are the parameters, its output the
     candidate.
@@ -194,9 +203,7 @@ def geoscaler_network(
     """
     started = time.perf_counter()  # the time budget covers building the network too
     variant = check_variant(options.settings.get("variant") or DEFAULT_VARIANT)
-    preset_name = options.settings.get("preset") or DEFAULT_PRESET
-    if preset_name not in PRESETS:
-        raise GeoscalerError(f"preset {preset_name!r}: choose one of {', '.join(PRESETS)}")
+    preset_name = check_preset(options.settings.get("preset") or DEFAULT_PRESET)
     preset = PRESETS[preset_name]
     renderer = method_renderer(mesh, options, context)
     torch.manual_seed(options.seed)
