@@ -189,7 +189,8 @@ def rendering_loss(
 
 @dataclass
 class OptimizeResult:
-    """The best candidate and how the run went."""
+    """The best validated candidate, finished as it ships (:func:`finish`), and how the run
+    went; ``best_psnr`` is that finished candidate's validation score."""
 
     textures: list[torch.Tensor | None]
     uvs: torch.Tensor | None
@@ -253,8 +254,8 @@ def cache_training_views(
         deadline = start + CACHING_SHARE * config.time_budget
     pool = ViewSet(renderer, cameras, report, deadline, config.views_per_step)
     train = ViewCache(pool, sizes, keeps_uvs)
-    # Texels no training view reads, filled from the charts at the end (found now: this
-    # depends only on the taps, and the end of a budgeted run has no time to spare).
+    # Texels no training view reads, filled from the charts in every validated candidate
+    # (found once: this depends only on the taps).
     seen = [seen_texels(train, i) if keeps_uvs and s else None for i, s in enumerate(sizes)]
     return train, seen
 
@@ -286,10 +287,36 @@ def train_step(
     return loss.item()
 
 
+Candidate = tuple[list[torch.Tensor | None], torch.Tensor | None]
+"""``(textures, uvs)``: per material a ``(h, w, 3)`` linear texture or None, and ``(V, 2)``
+UVs or None (the mesh's own)."""
+
+
+def finish(
+    textures: Sequence[torch.Tensor | None], seen: Sequence[torch.Tensor | None]
+) -> list[torch.Tensor | None]:
+    """The candidate's textures as they will ship, before 8-bit encoding: detached, and
+    texels that no training view reads filled from their charts (:func:`fill_unseen`; ``seen``
+    per material, None: nothing to fill)."""
+    finished = []
+    for texture, mask in zip(textures, seen, strict=True):
+        if texture is not None:
+            texture = texture.detach()
+            texture = texture.clone() if mask is None else fill_unseen(texture, mask)
+        finished.append(texture)
+    return finished
+
+
 @torch.no_grad()
-def validate(cache: ViewCache, model: Model) -> float:
-    """Mean PSNR-fg of the 8-bit-quantised candidate over the cached validation views."""
+def validate(
+    cache: ViewCache, model: Model, seen: Sequence[torch.Tensor | None] | None = None
+) -> tuple[float, Candidate]:
+    """Mean PSNR-fg over the cached validation views of the candidate as it will ship
+    (:func:`finish`, then 8-bit quantised), and that finished candidate: what is validated is
+    what ships."""
     textures, uvs = model.candidate()
+    textures = finish(textures, seen or [None] * len(textures))
+    uvs = None if uvs is None else uvs.detach().clone()
     shipped = [None if t is None else quantize_linear(t) for t in textures]
     views = cache.views
     values = [
@@ -300,7 +327,7 @@ def validate(cache: ViewCache, model: Model) -> float:
         )
         for i in range(len(views))
     ]
-    return float(torch.cat(values).mean())
+    return float(torch.cat(values).mean()), (textures, uvs)
 
 
 def optimize(
@@ -356,7 +383,7 @@ def optimize(
 
     best = _Best()
     validation_start = time.perf_counter()
-    best.offer(validate(validation, model), 0, model)  # the start is a candidate too
+    best.offer(*validate(validation, model, seen), 0)  # the start is a candidate too
     # A run under a budget stops early enough for one more step and the final validation (with
     # half a validation's time to spare: on a busy machine one takes longer than the next).
     reserve = 1.5 * (time.perf_counter() - validation_start)
@@ -405,9 +432,9 @@ def optimize(
         )
         history.append({"step": step, "loss": loss_value, "elapsed": elapsed})
         if step % config.validate_every == 0 or step == config.steps:
-            psnr = validate(validation, model)
+            psnr, finished = validate(validation, model, seen)
             validated_step = step
-            improved = best.offer(psnr, step, model)
+            improved = best.offer(psnr, finished, step)
             history[-1]["validation_psnr_fg"] = psnr
             emit(
                 ProgressEvent(
@@ -426,11 +453,7 @@ def optimize(
                 break
 
     if validated_step != step:  # stopped between validations: the current state may be better
-        best.offer(validate(validation, model), step, model)
-    best.textures = [
-        t if t is None or mask is None else fill_unseen(t, mask)
-        for t, mask in zip(best.textures, seen, strict=True)
-    ]
+        best.offer(*validate(validation, model, seen), step)
     seconds = time.perf_counter() - start
     emit(ProgressEvent("done", step, config.steps, seconds, loss_value, None, best.psnr))
     return OptimizeResult(
@@ -471,14 +494,12 @@ class _Best:
         self.textures: list[torch.Tensor | None] = []
         self.uvs: torch.Tensor | None = None
 
-    def offer(self, psnr: float, step: int, model: Model) -> bool:
+    def offer(self, psnr: float, candidate: Candidate, step: int) -> bool:
+        """Keep ``candidate`` (finished, as validated) if it scored better than the best."""
         if psnr <= self.psnr:
             self.stale += 1
             return False
-        with torch.no_grad():
-            textures, uvs = model.candidate()
-            self.textures = [None if t is None else t.detach().clone() for t in textures]
-            self.uvs = None if uvs is None else uvs.detach().clone()
+        self.textures, self.uvs = candidate
         self.psnr, self.step, self.stale = psnr, step, 0
         return True
 

@@ -188,6 +188,13 @@ def format_report(document: dict[str, Any]) -> str:
             f"{details.get('best_step')}), stopped by {details.get('stopped_by')}; "
             f"{document['seconds']:.1f} s for the whole job"
         )
+        shipped = details.get("shipped", document["method"])
+        if shipped != document["method"]:
+            lines.append(
+                f"shipped {shipped}: it scored higher on Q than {document['method']}'s own "
+                f"result ({details['optimised_psnr_fg']:.2f} dB PSNR-fg), so the output is "
+                f"{shipped}'s texture; give the method more steps or time"
+            )
         if details["steps"] == 0 and details.get("stopped_by") == "time budget":
             lines.append(
                 f"note: the time budget ({details.get('time_budget')} s) ran out while the "
