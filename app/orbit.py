@@ -10,7 +10,8 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
-from geoscaler.cameras import VALIDATION_DISTANCE, Camera
+from geoscaler.cameras import Camera
+from geoscaler.protocol import VALIDATION_DISTANCE
 
 MIN_DISTANCE = 1.1  # just outside the unit sphere that holds the normalised mesh
 MAX_DISTANCE = 12.0
