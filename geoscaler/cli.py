@@ -444,7 +444,8 @@ def build_parser() -> argparse.ArgumentParser:
     downsample.add_argument(
         "--time-budget",
         type=float,
-        help="seconds a learned method may spend, view caching included (default 60)",
+        help="wall-clock seconds the whole command may take with a learned method: loading, "
+        "view caching, optimisation, scoring and export (default 60)",
     )
     downsample.add_argument(
         "--steps", type=int, help="maximum optimisation steps (default: the method's, 300)"

@@ -9,6 +9,7 @@ validated start scored 20.65 (Lanczos).
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ import pytest
 from geoscaler.cli import main
 from geoscaler.io import save_mesh
 from geoscaler.job import compare_mesh, no_worse_than_filters
-from geoscaler.methods import MethodOptions, MethodResult
+from geoscaler.methods import MethodOptions, MethodResult, get_method, registry
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
 from geoscaler.render import Renderer
@@ -94,3 +95,38 @@ def test_the_report_says_what_shipped(tmp_path, capsys):
     assert "shipped lanczos: it scored higher on Q than direct's own result" in printed
     document = json.loads(report.read_text())
     assert document["details"]["shipped"] == document["results"][0]["shipped"] == "lanczos"
+
+
+@pytest.fixture
+def budget_spy():
+    """A learned method (bicubic's texture) that records the budget the job hands it."""
+    budgets: list[float | None] = []
+
+    def learned(mesh, scale, options, context):
+        budgets.append(context.time_budget)
+        return get_method("bicubic").run(mesh, scale, options, context)
+
+    registry.register("budget-spy", learned, learned=True)
+    yield budgets
+    registry.unregister("budget-spy")
+
+
+@pytest.mark.parametrize("already_spent", [25.0, 40.0])
+def test_a_whole_job_budget_leaves_the_method_only_what_is_left(budget_spy, already_spent):
+    """With ``started_at`` the budget is the job's wall clock: the method gets the budget less
+    everything spent since the job began (here 25 s or 40 s before the comparison, as a slow
+    load would), less the reserve for what comes after it."""
+    mesh = demo_mesh(subdivisions=4, texture_size=64)
+    options = MethodOptions(device="cpu", time_budget=30.0)
+    renderer = Renderer(mesh, "cpu", Evaluation.quick((0,), image_size=64))
+    before = time.perf_counter()
+    began = before - already_spent
+    compare_mesh(
+        mesh, [4], ["budget-spy", "lanczos"], options=options, renderer=renderer,
+        started_at=began, reserve=2.0,
+    )  # fmt: skip
+    took = time.perf_counter() - before
+    (budget,) = budget_spy
+    upper = 30.0 - already_spent - 2.0  # the job's own work before the method only lowers it
+    lower = upper - 2.5 * took  # that work, and 1.5 times the scoring of one filter
+    assert max(lower, 1e-3) <= budget <= max(upper, 1e-3)
