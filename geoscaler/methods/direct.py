@@ -72,4 +72,4 @@ def direct(
     return fit(mesh, scale, renderer, model, config, context, started)
 
 
-register("direct", direct, learned=True)
+register("direct", direct, learned=True, steps=lambda settings: DEFAULT_CONFIG["steps"])

@@ -20,6 +20,7 @@ Presets:
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -215,7 +216,7 @@ def geoscaler_network(
         loss, perceptual_note = perceptual_loss(options.settings.get("vgg19"), renderer.device)
         perceptual = None if loss is None else PerceptualTerm(loss, preset.perceptual_weight)
 
-    loop = loop_config({"steps": 300, **preset.optimize}, options, context)
+    loop = loop_config(preset.optimize, options, context)
     details = {
         "variant": variant,
         "preset": preset_name,
@@ -251,8 +252,17 @@ def uv_shift(
     return {"mean": float(distance.mean()), "max": float(distance.max())}
 
 
-register("geoscaler", geoscaler_network, learned=True)
+def preset_steps(settings: Mapping[str, Any]) -> int:
+    """The step limit of the preset ``settings`` name (default: :data:`DEFAULT_PRESET`)."""
+    return PRESETS[check_preset(settings.get("preset") or DEFAULT_PRESET)].optimize["steps"]
+
+
+register("geoscaler", geoscaler_network, learned=True, steps=preset_steps)
 for _variant in VARIANTS:
     register(
-        f"geoscaler-{_variant}", geoscaler_network, learned=True, settings={"variant": _variant}
+        f"geoscaler-{_variant}",
+        geoscaler_network,
+        learned=True,
+        settings={"variant": _variant},
+        steps=preset_steps,
     )

@@ -98,20 +98,31 @@ class Method:
         run: the implementation.
         learned: optimises through the renderer (steps, budget, progress) or is a filter.
         settings: fixed settings merged into the options (aliases such as ``geoscaler-base``).
+        steps: a learned method's default step limit for its settings (None: a filter).
     """
 
     name: str
     run: Run
     learned: bool
     settings: Mapping[str, Any] = field(default_factory=dict)
+    steps: Callable[[Mapping[str, Any]], int] | None = None
 
 
 _METHODS: dict[str, Method] = {}
 
 
-def register(name: str, run: Run, *, learned: bool, settings: Mapping[str, Any] | None = None):
-    """Add a method (or, with ``settings``, an alias that runs ``run`` with them)."""
-    _METHODS[name] = Method(name, run, learned, dict(settings or {}))
+def register(
+    name: str,
+    run: Run,
+    *,
+    learned: bool,
+    settings: Mapping[str, Any] | None = None,
+    steps: Callable[[Mapping[str, Any]], int] | None = None,
+) -> None:
+    """Add a method (or, with ``settings``, an alias that runs ``run`` with them); a learned
+    one says with ``steps`` what step limit it runs for given settings when the user sets
+    none."""
+    _METHODS[name] = Method(name, run, learned, dict(settings or {}), steps)
 
 
 def unregister(name: str) -> None:
@@ -131,6 +142,18 @@ def get_method(name: str) -> Method:
         known = ", ".join(method_names())
         raise GeoscalerError(f"unknown method {name!r}; choose one of: {known}")
     return _METHODS[name]
+
+
+def default_steps(name: str, settings: Mapping[str, Any] | None = None) -> int | None:
+    """The step limit method ``name`` runs with ``settings`` when the user gives no
+    ``--steps``: ``settings["optimize"]["steps"]`` if set, else the method's own default
+    (None for a filter)."""
+    method = get_method(name)
+    settings = {**(settings or {}), **method.settings}
+    override = settings.get("optimize", {}).get("steps")
+    if override is not None:
+        return int(override)
+    return None if method.steps is None else method.steps(settings)
 
 
 def is_learned(name: str) -> bool:
