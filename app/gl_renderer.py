@@ -28,6 +28,8 @@ from geoscaler.mesh import TexturedMesh
 from geoscaler.protocol import IMAGE_SIZE, SUPERSAMPLE
 from geoscaler.texture import build_mip_chain, linear_to_srgb, texture_to_linear, to_rgb
 
+from .orbit import view_scale
+
 if TYPE_CHECKING:
     from importlib.resources.abc import Traversable
 
@@ -150,30 +152,42 @@ def pan_matrix(pan: tuple[float, float]) -> np.ndarray:
 class Target:
     """Where one view is drawn: a supersampled float framebuffer and the resolved image.
 
+    Args:
+        size: the side of a square target, or ``(width, height)`` in pixels.
+
     Attributes:
-        image: ``(size, size)`` RGBA8 texture, sRGB-encoded colour, opaque (shown by the app).
-        covered: ``(size, size)`` R8 texture, 1 where the mesh covers any supersample.
+        shape: ``(width, height)`` in pixels.
+        image: ``shape`` RGBA8 texture, sRGB-encoded colour, opaque (shown by the app).
+        covered: ``shape`` R8 texture, 1 where the mesh covers any supersample.
     """
 
-    def __init__(self, ctx: moderngl.Context, size: int, supersample: int):
-        self.size = size
+    def __init__(self, ctx: moderngl.Context, size: int | tuple[int, int], supersample: int):
+        width, height = (size, size) if isinstance(size, int) else size
+        self.shape = (int(width), int(height))
         self.supersample = supersample
-        side = size * supersample
-        self.samples = ctx.texture((side, side), 4, dtype="f4")
+        sampled = (self.shape[0] * supersample, self.shape[1] * supersample)
+        self.samples = ctx.texture(sampled, 4, dtype="f4")
         self.samples.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        self.depth = ctx.depth_renderbuffer((side, side))
+        self.depth = ctx.depth_renderbuffer(sampled)
         self.draw_fbo = ctx.framebuffer([self.samples], self.depth)
-        self.image = ctx.texture((size, size), 4)
-        self.covered = ctx.texture((size, size), 1)
+        self.image = ctx.texture(self.shape, 4)
+        self.covered = ctx.texture(self.shape, 1)
         self.resolve_fbo = ctx.framebuffer([self.image, self.covered])
 
+    @property
+    def size(self) -> int:
+        """The width in pixels (the side of a square target)."""
+        return self.shape[0]
+
     def read(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(image (size, size, 3) uint8 sRGB, foreground (size, size) bool)``, row 0 on top."""
-        size = self.size
+        """``(image (height, width, 3) uint8 sRGB, foreground (height, width) bool)``, row 0 on
+        top."""
+        width, height = self.shape
         rgba = np.frombuffer(self.resolve_fbo.read(components=4, attachment=0), np.uint8)
         mask = np.frombuffer(self.resolve_fbo.read(components=1, attachment=1), np.uint8)
-        image = rgba.reshape(size, size, 4)[::-1, :, :3]
-        return np.ascontiguousarray(image), np.ascontiguousarray(mask.reshape(size, size)[::-1] > 0)
+        image = rgba.reshape(height, width, 4)[::-1, :, :3]
+        covered = mask.reshape(height, width)[::-1] > 0
+        return np.ascontiguousarray(image), np.ascontiguousarray(covered)
 
     def release(self) -> None:
         for thing in (
@@ -291,19 +305,24 @@ class GLRenderer:
         """The mesh's own textures as the protocol's reference maps (larger than 2048 reduced)."""
         return Surface(self, reference_textures(self.mesh))
 
-    def target(self) -> Target:
-        """A new render target of this renderer's size and supersampling."""
-        return Target(self.ctx, self.image_size, self.supersample)
+    def target(self, shape: tuple[int, int] | None = None) -> Target:
+        """A new render target of this renderer's supersampling, ``shape`` (width, height)
+        pixels (None: the renderer's square image size)."""
+        return Target(self.ctx, shape or self.image_size, self.supersample)
 
-    def preview_target(self) -> Target:
-        """A target 8 times cheaper to fill: half the image size, no supersampling."""
-        return Target(self.ctx, self.image_size // 2, 1)
+    def preview_target(self, shape: tuple[int, int] | None = None) -> Target:
+        """A target 8 times cheaper to fill than :meth:`target`'s: half the width and height,
+        no supersampling."""
+        width, height = shape or (self.image_size, self.image_size)
+        return Target(self.ctx, (max(width // 2, 1), max(height // 2, 1)), 1)
 
-    def target_pair(self, preview: bool = False) -> TargetPair:
+    def target_pair(
+        self, preview: bool = False, shape: tuple[int, int] | None = None
+    ) -> TargetPair:
         """Two targets (of :meth:`target`'s size, or :meth:`preview_target`'s) for
         :meth:`render_pair`."""
         make = self.preview_target if preview else self.target
-        return TargetPair(self.ctx, (make(), make()))
+        return TargetPair(self.ctx, (make(shape), make(shape)))
 
     def mesh_vertex_array(self, surfaces: Sequence[Surface]) -> moderngl.VertexArray:
         """The mesh with the UVs of one or two surfaces (attributes ``uv``, ``uv_b``)."""
@@ -356,9 +375,11 @@ class GLRenderer:
         fbo: moderngl.Framebuffer,
         pan: tuple[float, float],
     ) -> None:
-        """Draw ``surfaces[i]`` into colour attachment ``i`` of ``fbo`` (supersampled)."""
+        """Draw ``surfaces[i]`` into colour attachment ``i`` of ``fbo`` (supersampled); a
+        non-square ``fbo`` sees less across its shorter side (:func:`~.orbit.view_scale`)."""
         ctx = self.ctx
-        clip = pan_matrix(pan) @ camera.clip_matrix()
+        widen = np.diag([*view_scale(*fbo.size), 1.0, 1.0])
+        clip = pan_matrix(pan) @ widen @ camera.clip_matrix()
         fbo.use()
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         ctx.enable(moderngl.DEPTH_TEST)

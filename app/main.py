@@ -18,7 +18,7 @@ from pathlib import Path
 
 import moderngl
 import numpy as np
-from imgui_bundle import ImVec2, hello_imgui, imgui, immapp
+from imgui_bundle import hello_imgui, imgui, immapp
 
 from geoscaler.errors import GeoscalerError
 from geoscaler.io import (
@@ -34,21 +34,33 @@ from geoscaler.mesh import TexturedMesh
 from geoscaler.procedural import demo_mesh
 from geoscaler.report import dumps, report_document
 
-from .panels import BookmarksPanel, ExportPanel, OptimisePanel, PlotsPanel, UVPanel
+from .panels import BookmarksPanel, ExportPanel, OptimisePanel, Panel, PlotsPanel, UVPanel
 from .session import DEMO_NAME, Session
 from .state import AppState
 from .training import Training, TrainingSettings, TrainingState
 from .views import ViewsPanel
 
 WINDOW_SIZE = (1280, 800)
-LAYOUT = {  # window -> (x, y, width, height) at first use, for a 1280 x 800 window; the
-    # order is the order of the panels in App.gui
-    "Views": (0, 20, 760, 470),
-    "Optimise": (760, 20, 520, 290),
-    "Plots": (760, 310, 520, 220),
-    "UV inspector": (0, 490, 760, 310),
-    "Bookmarks": (760, 530, 520, 150),
-    "Export": (760, 680, 520, 120),
+"""The window's size where the screen's cannot be read."""
+SCREEN_SHARE = 0.9
+"""The share of the screen's width and height (its work area) the window opens at."""
+SPLITS = (  # (dock space split, new dock space, side, share of the split space)
+    ("MainDockSpace", "Bottom", imgui.Dir.down, 0.32),
+    ("MainDockSpace", "Side", imgui.Dir.right, 0.3),
+    ("Bottom", "BottomRight", imgui.Dir.right, 0.6),
+    ("Side", "SideMiddle", imgui.Dir.down, 0.45),
+    ("SideMiddle", "SideLast", imgui.Dir.down, 0.5),
+)
+"""The docking layout at first start: the views take the free space; right of them the
+optimiser over the bookmarks and the export; under them, across the window, the UV inspector
+and the plots."""
+DOCKS = {  # window -> the dock space (of SPLITS) where it starts
+    "Views": "MainDockSpace",
+    "Optimise": "Side",
+    "Bookmarks": "SideMiddle",
+    "Export": "SideLast",
+    "UV inspector": "Bottom",
+    "Plots": "BottomRight",
 }
 MAX_FPS = 60.0
 """Frames a second at most: the rest of the time (and the GIL) goes to the optimiser."""
@@ -148,7 +160,7 @@ class App:
         if self.session is not None:
             self.session.release()
         self.session = session
-        self.views.dirty = True
+        self.views.go_home()  # framed on the new mesh
         self.uv.reset()
         scale = self.state.settings.scale
         self.state.export_name = str(self.out_dir / f"{session.name}_x{scale}.glb")
@@ -286,15 +298,13 @@ class App:
         self._collect_load()
         self._collect_dialog()
         self._collect_training()
-        self._menu()
         if self.session is None:
             imgui.text("loading..." if self.loading else (self.state.error or "no mesh open"))
-            return
-        panels = (self.views, self.optimise, self.plots, self.uv, self.bookmarks, self.exporter)
-        for panel, (x, y, w, h) in zip(panels, LAYOUT.values(), strict=True):
-            imgui.set_next_window_pos(ImVec2(x, y), imgui.Cond_.first_use_ever)
-            imgui.set_next_window_size(ImVec2(w, h), imgui.Cond_.first_use_ever)
-            panel.draw(self)
+
+    def panels(self) -> dict[str, Panel]:
+        """The app's windows by title (:data:`DOCKS`'s order)."""
+        panels = (self.views, self.optimise, self.bookmarks, self.exporter, self.uv, self.plots)
+        return dict(zip(DOCKS, panels, strict=True))
 
     def _pace(self) -> None:
         """Sleep out the rest of a 1 / MAX_FPS frame."""
@@ -304,9 +314,8 @@ class App:
             time.sleep(wait)
         self.last_frame = time.perf_counter()
 
-    def _menu(self) -> None:
-        if not imgui.begin_main_menu_bar():
-            return
+    def _menus(self) -> None:
+        """The menu bar: File, then hello_imgui's View (windows, the default layout, theme)."""
         if imgui.begin_menu("File"):
             if imgui.menu_item_simple("Open..."):
                 self.open_dialog()
@@ -324,11 +333,11 @@ class App:
             if imgui.menu_item_simple("Quit"):
                 hello_imgui.get_runner_params().app_shall_exit = True
             imgui.end_menu()
+        hello_imgui.show_view_menu(hello_imgui.get_runner_params())
         if self.session is not None:
             imgui.text_disabled(
                 f"  {self.session.display_path}  (drop a mesh file here to open it)"
             )
-        imgui.end_main_menu_bar()
 
     def shutdown(self) -> None:
         """Stop the optimiser and wait for it: a phase that cannot be cut short (view caching,
@@ -340,20 +349,90 @@ class App:
 
     # ----------------------------------------------------------------- running
 
-    def runner_params(self) -> hello_imgui.RunnerParams:
-        """hello_imgui settings of the app's window."""
+    def runner_params(self, layout_file: Path | None = None) -> hello_imgui.RunnerParams:
+        """hello_imgui settings of the app's window.
+
+        Args:
+            layout_file: where the window's size and the docking layout are kept between runs
+                (hello_imgui's ini file); None: not kept, every run starts from
+                :func:`default_window_size` and :data:`SPLITS`.
+        """
         params = hello_imgui.RunnerParams()
-        params.app_window_params.window_title = "GeoScaler"
-        params.app_window_params.window_geometry.size = WINDOW_SIZE
-        params.imgui_window_params.default_imgui_window_type = (
-            hello_imgui.DefaultImGuiWindowType.no_default_window
+        window = params.app_window_params
+        window.window_title = "GeoScaler"
+        window.window_geometry.size = default_window_size()
+        window.window_geometry.window_size_measure_mode = (
+            hello_imgui.WindowSizeMeasureMode.screen_coords
         )
-        params.ini_disable = True
+        window.window_geometry.position_mode = hello_imgui.WindowPositionMode.monitor_center
+        window.restore_previous_geometry = layout_file is not None
+        imgui_params = params.imgui_window_params
+        imgui_params.default_imgui_window_type = (
+            hello_imgui.DefaultImGuiWindowType.provide_full_screen_dock_space
+        )
+        imgui_params.show_menu_bar = True
+        imgui_params.show_menu_app = imgui_params.show_menu_view = False  # _menus draws them
+        params.docking_params = self.docking_params()
+        if layout_file is None:
+            params.ini_disable = True
+        else:
+            params.ini_folder_type = hello_imgui.IniFolderType.absolute_path
+            params.ini_filename = str(Path(layout_file).resolve())
         params.fps_idling.fps_idle = IDLE_FPS
         params.callbacks.show_gui = self.gui
+        params.callbacks.show_menus = self._menus
         params.callbacks.post_init = self.post_init
         params.callbacks.before_exit = self.shutdown
         return params
+
+    def docking_params(self) -> hello_imgui.DockingParams:
+        """The windows, docked as :data:`SPLITS` and :data:`DOCKS` say at first start (then as
+        the user leaves them); each panel begins and ends its own window."""
+        docking = hello_imgui.DockingParams()
+        docking.docking_splits = [
+            hello_imgui.DockingSplit(space, new, side, share) for space, new, side, share in SPLITS
+        ]
+        windows = []
+        for title, panel in self.panels().items():
+            window = hello_imgui.DockableWindow(title, DOCKS[title], self._panel_gui(panel))
+            window.call_begin_end = False
+            window.can_be_closed = False
+            windows.append(window)
+        docking.dockable_windows = windows
+        return docking
+
+    def _panel_gui(self, panel: Panel) -> Callable[[], None]:
+        """Draws ``panel`` once a mesh is open."""
+
+        def draw() -> None:
+            if self.session is not None:
+                panel.draw(self)
+
+        return draw
+
+
+def default_window_size() -> tuple[int, int]:
+    """:data:`SCREEN_SHARE` of the primary monitor's work area (:data:`WINDOW_SIZE` where it
+    cannot be read), in screen coordinates."""
+    try:
+        import glfw
+
+        if not glfw.init():
+            return WINDOW_SIZE
+        monitor = glfw.get_primary_monitor()
+        _, _, width, height = glfw.get_monitor_workarea(monitor) if monitor else (0, 0, 0, 0)
+    except Exception:  # no glfw here: the app's fixed size
+        return WINDOW_SIZE
+    if width <= 0 or height <= 0:
+        return WINDOW_SIZE
+    return int(width * SCREEN_SHARE), int(height * SCREEN_SHARE)
+
+
+def user_layout_file() -> Path:
+    """Where ``geoscaler view`` keeps its window size and layout: ``geoscaler/app.ini`` in the
+    user's configuration folder (``~/.config`` on Linux)."""
+    folder = hello_imgui.ini_folder_location(hello_imgui.IniFolderType.app_user_config_folder)
+    return Path(folder) / "geoscaler" / "app.ini"
 
 
 def add_ons() -> immapp.AddOnsParams:
@@ -367,4 +446,4 @@ def _json(document: dict) -> str:
 def run(mesh_path: Path | None = None, out_dir: Path = Path("."), **settings) -> None:
     """Open the app on ``mesh_path`` (None: the demo asset); returns when the window closes."""
     app = App(mesh_path, out_dir, TrainingSettings(**settings))
-    immapp.run(app.runner_params(), add_ons())
+    immapp.run(app.runner_params(user_layout_file()), add_ons())

@@ -7,8 +7,9 @@ and asks App for actions (start, export...); none of them blocks the UI thread f
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import torch
@@ -19,7 +20,7 @@ from geoscaler.metrics import psnr_fg, ssim_fg
 from geoscaler.protocol import VIEWS
 
 from .gl_renderer import use_screen
-from .training import SSIM_VIEWS
+from .training import SSIM_VIEWS, TrainingSettings, TrainingState
 from .uv_inspect import (
     GRID_COLOUR,
     OUTLINE_COLOUR,
@@ -36,10 +37,76 @@ if TYPE_CHECKING:
 
 RED = ImVec4(1.0, 0.35, 0.3, 1.0)
 GREEN = ImVec4(0.5, 1.0, 0.5, 1.0)
+AXIS_ROOM = 9.0
+"""Font sizes of a plot's width taken by its y axes' labels and ticks."""
+EMPTY = (0.0, 1.0)
+"""Axis limits of a plot without data."""
+NO_LIMIT = "no limit"
+"""What the time budget field shows when there is none (the user emptied it)."""
+FIELD_FLAGS = imgui.InputTextFlags_.auto_select_all | imgui.InputTextFlags_.chars_decimal
+
+
+class Panel(Protocol):
+    """A window of the app: it draws itself, reading and changing ``app.state``."""
+
+    def draw(self, app: App) -> None: ...
+
+
+def steps_text(settings: TrainingSettings) -> str:
+    """The steps field: the steps the run will stop at, the method's default unless set."""
+    limit = settings.step_limit()
+    return "method default" if limit is None else str(limit)
+
+
+def budget_text(settings: TrainingSettings) -> str:
+    """The time budget field: the run's seconds, or :data:`NO_LIMIT`."""
+    budget = settings.time_budget
+    return NO_LIMIT if budget is None else f"{budget:g}"
+
+
+def read_steps(text: str, settings: TrainingSettings) -> None:
+    """Set ``settings.steps`` from the steps field: a whole number >= 1, or empty for the
+    method's default (anything else, e.g. half typed, leaves it as it was)."""
+    text = text.strip()
+    if not text:
+        settings.steps = None
+    elif text.isdigit() and int(text) >= 1:
+        settings.steps = int(text)
+
+
+def read_budget(text: str, settings: TrainingSettings) -> None:
+    """Set ``settings.time_budget`` from its field: positive seconds, or empty (or
+    :data:`NO_LIMIT`) for no limit (anything else leaves it as it was)."""
+    text = text.strip()
+    if not text or text == NO_LIMIT:
+        settings.time_budget = None
+        return
+    try:
+        seconds = float(text)
+    except ValueError:
+        return
+    if math.isfinite(seconds) and seconds > 0:
+        settings.time_budget = seconds
+
+
+def run_summary(settings: TrainingSettings) -> str:
+    """One line on when a run with ``settings`` stops."""
+    limit = settings.step_limit()
+    steps = "the method's step limit" if limit is None else f"{limit} steps"
+    if settings.steps is None and limit is not None:
+        steps += f" ({settings.method}'s default)"
+    if settings.time_budget is None:
+        return f"stops after {steps}, no time limit"
+    return f"stops after {steps} or {settings.time_budget:g} s, whichever comes first"
 
 
 class OptimisePanel:
-    """Method, scale, steps or time budget; start / pause / resume / stop; progress."""
+    """Method, scale, steps or time budget; start / pause / resume / stop; progress.
+
+    The steps and time budget fields show what the run will use: the method's default steps
+    and the CLI's time budget until the user types others; emptying the steps field brings back
+    the default, emptying the time budget means no limit (the field then reads "no limit").
+    """
 
     def __init__(self) -> None:
         self.methods = method_names(aliases=False)
@@ -56,11 +123,15 @@ class OptimisePanel:
         if changed and 2 <= scale <= 64:
             app.set_scale(scale)
         if is_learned(settings.method):
-            changed, steps = imgui.input_int("steps", settings.steps or 0, 10, 100)
-            settings.steps = steps if steps > 0 else None
-            budget = settings.time_budget or 0.0
-            changed, budget = imgui.input_float("time budget (s)", budget, 5.0, 30.0, "%.0f")
-            settings.time_budget = budget if budget > 0 else None
+            changed, text = imgui.input_text("steps", steps_text(settings), FIELD_FLAGS)
+            if changed:
+                read_steps(text, settings)
+            imgui.set_item_tooltip("empty it for the method's default")
+            changed, text = imgui.input_text("time budget (s)", budget_text(settings), FIELD_FLAGS)
+            if changed:
+                read_budget(text, settings)
+            imgui.set_item_tooltip("empty it for no time limit (Stop ends the run)")
+            imgui.text_disabled(run_summary(settings))
             evaluation = settings.evaluation
             count = len(evaluation.view_indices)
             changed, count = imgui.input_int("validation views", count)
@@ -120,11 +191,47 @@ class OptimisePanel:
                 )
 
 
+def padded(values: Sequence[float], pad: float = 0.08) -> tuple[float, float] | None:
+    """Axis limits that hold every finite value of ``values`` with ``pad`` of their span to
+    spare either side (a lone value: a small span around it); None without a finite value."""
+    finite = [v for v in values if math.isfinite(v)]
+    if not finite:
+        return None
+    lo, hi = min(finite), max(finite)
+    margin = (hi - lo) * pad or max(abs(hi) * 0.01, 1e-3)
+    return lo - margin, hi + margin
+
+
+def nice_ticks(lo: float, hi: float, count: int) -> list[float]:
+    """At most ``count`` round values in ``[lo, hi]``, 1, 2 or 5 times a power of ten apart:
+    the closest such spacing that needs no more (so that their labels do not run together)."""
+    span = hi - lo
+    if not (math.isfinite(span) and span > 0):
+        return [lo]
+    power = 10.0 ** math.floor(math.log10(span / max(count, 1)))
+    for step in (m * power * 10**k for k in range(3) for m in (1, 2, 5)):
+        first, last = math.ceil(lo / step), math.floor(hi / step)
+        if last - first + 1 <= count:
+            return [k * step for k in range(first, last + 1)] or [lo]
+    return [lo]
+
+
 class PlotsPanel:
-    """Loss and validation PSNR-fg against step or time (implot), bicubic as a line."""
+    """Loss and validation PSNR-fg against step or time (implot), bicubic as a line.
+
+    The axes are fitted here rather than by implot, so that bicubic's level -- the zero of the
+    gain -- is always on the PSNR axis; step or time ticks are spaced to their labels' width;
+    legends sit outside the plot area, above it, where they hide no curve.
+
+    Attributes:
+        validation_limits: ``(low, high)`` of the PSNR axis as implot drew it last frame.
+        validation_points: the validations plotted last frame.
+    """
 
     def __init__(self) -> None:
         self.against_time = False
+        self.validation_limits: tuple[float, float] | None = None
+        self.validation_points = 0
 
     def draw(self, app: App) -> None:
         imgui.begin("Plots")
@@ -134,32 +241,93 @@ class PlotsPanel:
         if imgui.radio_button("against time (s)", self.against_time):
             self.against_time = True
         state = app.progress
-        size = ImVec2((imgui.get_content_region_avail().x - 8) / 2, -1)
-        x_label = "seconds" if self.against_time else "step"
-        fit = implot.AxisFlags_.auto_fit
-        if implot.begin_plot("loss", size):
-            implot.setup_axes(x_label, "training loss", fit, fit)
-            if state is not None and state.losses:
-                xs = state.times if self.against_time else state.steps
-                implot.plot_line("loss", np.asarray(xs, float), np.asarray(state.losses, float))
-            implot.end_plot()
-        imgui.same_line()
-        if implot.begin_plot("validation", size):
-            implot.setup_axes(x_label, "PSNR-fg (dB)", fit, fit)
-            implot.setup_axis(implot.ImAxis_.y2, "SSIM-fg", fit | implot.AxisFlags_.opposite)
-            if state is not None and state.validation_psnr:
-                xs = state.validation_times if self.against_time else state.validation_steps
-                xs = np.asarray(xs, float)
-                implot.plot_line("PSNR-fg", xs, np.asarray(state.validation_psnr, float))
-                if math.isfinite(state.bicubic_psnr):
-                    ys = np.full(len(xs), float(state.bicubic_psnr))
-                    implot.plot_line("bicubic PSNR-fg", xs, ys)
-                ssim = np.asarray(state.validation_ssim, float)
-                if len(ssim):
-                    implot.set_axes(implot.ImAxis_.x1, implot.ImAxis_.y2)
-                    implot.plot_line(f"SSIM-fg ({SSIM_VIEWS} views)", xs[: len(ssim)], ssim)
-            implot.end_plot()
+        available = imgui.get_content_region_avail()
+        stacked = available.y > 0.6 * available.x  # a tall window: one plot above the other
+        if stacked:
+            size = ImVec2(available.x, max((available.y - 8) / 2, 120))
+        else:
+            size = ImVec2(max((available.x - 8) / 2, 160), available.y)
+        self._loss(state, size)
+        if not stacked:
+            imgui.same_line()
+        self._validation(state, size)
         imgui.end()
+
+    def _x_axis(self, xs: np.ndarray, width: float) -> None:
+        """Fit the step or time axis of a plot ``width`` wide to ``xs``, with as many ticks as
+        their labels leave room for."""
+        implot.setup_axis(implot.ImAxis_.x1, "seconds" if self.against_time else "step")
+        limits = padded(xs.tolist(), 0.02) or EMPTY
+        implot.setup_axis_limits(implot.ImAxis_.x1, *limits, implot.Cond_.always)
+        label = imgui.calc_text_size(f"{limits[1]:.0f}").x + 2.5 * imgui.get_font_size()
+        area = width - AXIS_ROOM * imgui.get_font_size()  # less the y axes' labels
+        ticks = nice_ticks(*limits, max(int(area / label), 2))
+        implot.setup_axis_ticks(implot.ImAxis_.x1, ticks, [f"{t:g}" for t in ticks])
+
+    def _loss(self, state: TrainingState | None, size: ImVec2) -> None:
+        if not implot.begin_plot("loss", size, implot.Flags_.no_legend):
+            return
+        xs = [] if state is None else (state.times if self.against_time else state.steps)
+        xs = np.asarray(xs, float)
+        self._x_axis(xs, size.x)
+        implot.setup_axis(implot.ImAxis_.y1, "training loss", implot.AxisFlags_.auto_fit)
+        if not len(xs):
+            implot.setup_axis_limits(implot.ImAxis_.y1, *EMPTY, implot.Cond_.always)
+        if state is not None and state.losses:
+            implot.plot_line("loss", xs, np.asarray(state.losses, float))
+        implot.end_plot()
+
+    def _validation(self, state: TrainingState | None, size: ImVec2) -> None:
+        if not implot.begin_plot("validation", size):
+            return
+        implot.setup_legend(
+            implot.Location_.north, implot.LegendFlags_.outside | implot.LegendFlags_.horizontal
+        )
+        psnr = [] if state is None else state.validation_psnr
+        if state is None:
+            xs = np.zeros(0)
+        else:
+            times = self.against_time
+            xs = np.asarray(state.validation_times if times else state.validation_steps, float)
+        self._x_axis(xs, size.x)
+        implot.setup_axis(implot.ImAxis_.y1, "PSNR-fg (dB)")
+        implot.setup_axis(implot.ImAxis_.y2, "SSIM-fg", implot.AxisFlags_.opposite)
+        reference = math.nan if state is None else state.bicubic_psnr
+        limits = padded([*psnr, reference]) or EMPTY
+        implot.setup_axis_limits(implot.ImAxis_.y1, *limits, implot.Cond_.always)
+        ssim = np.asarray([] if state is None else state.validation_ssim, float)
+        ssim_limits = padded(ssim.tolist()) or EMPTY
+        implot.setup_axis_limits(implot.ImAxis_.y2, *ssim_limits, implot.Cond_.always)
+        marked = implot.Spec(marker=implot.Marker_.circle, marker_size=3)
+        if psnr:
+            implot.plot_line("PSNR-fg", xs, np.asarray(psnr, float), marked)
+        if math.isfinite(reference):
+            level = implot.Spec(flags=implot.InfLinesFlags_.horizontal)
+            implot.plot_inf_lines("bicubic PSNR-fg", np.asarray([reference], float), level)
+        if len(ssim):
+            implot.set_axes(implot.ImAxis_.x1, implot.ImAxis_.y2)
+            implot.plot_line(f"SSIM-fg ({SSIM_VIEWS} views)", xs[: len(ssim)], ssim, marked)
+        shown = implot.get_plot_limits(implot.ImAxis_.x1, implot.ImAxis_.y1).y
+        self.validation_limits = (shown.min, shown.max)
+        self.validation_points = len(psnr)
+        implot.end_plot()
+
+
+def column_labels(texts: Sequence[str], width: float) -> None:
+    """``texts`` on one line, each at the start of a column ``width`` wide (as images placed
+    with ``same_line()`` are) and cut at its end, so that a long one does not run into the
+    next."""
+    draw = imgui.get_window_draw_list()
+    start = imgui.get_cursor_screen_pos()
+    spacing = imgui.get_style().item_spacing.x
+    height = imgui.get_text_line_height()
+    colour = imgui.get_color_u32(imgui.Col_.text)
+    for index, text in enumerate(texts):
+        corner = ImVec2(start.x + index * (width + spacing), start.y)
+        draw.push_clip_rect(corner, ImVec2(corner.x + width, corner.y + height), True)
+        draw.add_text(corner, colour, text)
+        draw.pop_clip_rect()
+    imgui.dummy(ImVec2(len(texts) * (width + spacing), height))
 
 
 class UVPanel:
@@ -228,12 +396,12 @@ class UVPanel:
             self.size, self.drawn_for = int(side), None
         self._update(app)
         assert self.pictures is not None
-        imgui.text(f"original, {len(self.outlines)} chart boundary edges")
-        imgui.same_line(side + 16)
-        imgui.text(f"new: {session.candidate_label}")
-        if count == 3:
-            imgui.same_line(2 * side + 32)
-            imgui.text(f"UV warp, up to {self.warp_max_texels:.1f} texels")
+        labels = [
+            f"original, {len(self.outlines)} chart boundary edges",
+            f"new: {session.candidate_label}",
+            f"UV warp, up to {self.warp_max_texels:.1f} texels",
+        ]
+        column_labels(labels[:count], side)
         imgui.image(texture_ref(self.pictures[0].image), ImVec2(side, side), *FLIP_V)
         imgui.same_line()
         imgui.image(texture_ref(self.pictures[1].image), ImVec2(side, side), *FLIP_V)

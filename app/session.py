@@ -19,6 +19,9 @@ from .bookmarks import Bookmarks
 from .gl_renderer import GLRenderer, Surface
 
 DEMO_NAME = "geoscaler_demo"
+POINTS = 50_000
+"""Vertices (every n-th) by which the views frame the mesh (:meth:`Orbit.frame`): for the demo
+asset at 240,000 vertices, 2 ms instead of 9, and the same distance to 1 part in 10,000."""
 
 
 class Session:
@@ -54,12 +57,29 @@ class Session:
         self.candidate_label = ""
         self.targets = self.renderer.target_pair()  # (original, candidate)
         self.previews = self.renderer.target_pair(preview=True)
+        positions = mesh.normalized_positions()
+        self.points = positions[:: max(1, len(positions) // POINTS)]  # to frame the views by
         self.bookmarks = Bookmarks(out_dir / f"{self.name}.bookmarks.json", self.name)
         self.set_bicubic(scale)
 
     @property
     def display_path(self) -> str:
         return "built-in demo asset" if self.mesh_path is None else str(self.mesh_path)
+
+    @property
+    def view_shape(self) -> tuple[int, int]:
+        """``(width, height)`` in pixels of each of the two views."""
+        return self.targets.targets[0].shape
+
+    def set_view_shape(self, shape: tuple[int, int]) -> bool:
+        """Make the views (and their previews) ``shape`` pixels; True if that changed them."""
+        if shape == self.view_shape:
+            return False
+        for pair in (self.targets, self.previews):
+            pair.release()
+        self.targets = self.renderer.target_pair(shape=shape)
+        self.previews = self.renderer.target_pair(preview=True, shape=shape)
+        return True
 
     def set_bicubic(self, scale: int) -> None:
         """The candidate becomes bicubic at ``scale`` (raises GeoscalerError if too small)."""

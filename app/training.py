@@ -31,7 +31,7 @@ import torch
 from geoscaler.arguments import DEFAULT_TIME_BUDGET, check_method, check_scale, method_options
 from geoscaler.job import Downsampled, JobObserver, checked_output_sizes, downsample
 from geoscaler.mesh import TexturedMesh
-from geoscaler.methods import is_learned
+from geoscaler.methods import default_steps, is_learned
 from geoscaler.metrics import evaluate
 from geoscaler.optimize import Controller, ProgressEvent
 from geoscaler.protocol import GAIN_REFERENCE, PROTOCOL_EVALUATION, Evaluation
@@ -67,13 +67,14 @@ def lower_thread_priority(nice: int) -> None:
 
 @dataclass
 class TrainingSettings:
-    """What to run.
+    """What to run; the defaults are the CLI's.
 
     Attributes:
         method: a registered method name (:func:`geoscaler.methods.method_names`).
         scale: reduction factor per side.
-        steps: step limit of learned methods (None: the method's default).
-        time_budget: seconds a learned method may spend (None: the CLI's default, 60).
+        steps: step limit of learned methods (None: the method's default, :meth:`step_limit`).
+        time_budget: seconds a learned method may spend, view caching included (default: the
+            CLI's, :data:`geoscaler.arguments.DEFAULT_TIME_BUDGET`; None: no limit).
         evaluation: image size and views of the torch renders (protocol 1; tests use less).
         optimize: ``OptimizeConfig`` overrides for learned methods (tests use a small pool).
     """
@@ -81,9 +82,14 @@ class TrainingSettings:
     method: str = "direct"
     scale: int = 4
     steps: int | None = None
-    time_budget: float | None = None
+    time_budget: float | None = DEFAULT_TIME_BUDGET
     evaluation: Evaluation = PROTOCOL_EVALUATION
     optimize: dict[str, Any] = field(default_factory=dict)
+
+    def step_limit(self) -> int | None:
+        """The steps the run will stop at (unless its time budget ends it first); None when
+        the method's default is not known here."""
+        return self.steps or default_steps(self.method, {"optimize": self.optimize})
 
 
 @dataclass
@@ -135,19 +141,14 @@ class Training:
         self.mesh = mesh
         self.settings = settings
         extra = {"optimize": dict(settings.optimize)} if settings.optimize else {}
-        self.options = method_options(
-            [settings.method],
-            "cpu",
-            0,
-            settings.steps,
-            settings.time_budget,
-            extra,
-            default_budget=DEFAULT_TIME_BUDGET,
-        )
+        # No default budget here: None is the user's "no limit". A filter has no budget (the
+        # field is not shown for it), as the CLI gives it none unless asked.
+        budget = settings.time_budget if is_learned(settings.method) else None
+        self.options = method_options([settings.method], "cpu", 0, settings.steps, budget, extra)
         self.q: ViewSet | None = None
         self.controller = Controller()
         self.lock = threading.Lock()
-        self.state = TrainingState(total_steps=settings.steps or 0)
+        self.state = TrainingState(total_steps=settings.step_limit() or 0)
         self.thread = threading.Thread(target=self._run, name="geoscaler-training", daemon=True)
         self.started = 0.0
         self.seconds = 0.0  # wall time of the whole run, set when it ends

@@ -2,10 +2,11 @@
 
 Opens the app on a mesh (default: the 16,384-face ycb_lego_duplo_a of ../shared/data, or the
 19,200-face demo asset ``demo_mesh(40)`` when that is absent), starts ``direct`` and, once
-optimisation steps run, counts frames for ``--seconds`` in two modes:
+optimisation steps run, counts frames for ``--seconds`` in three modes (the window as the app
+opens it the first time: 90% of the screen, the default layout; no layout file is kept):
 
-- ``orbit``: the camera turns every frame, so both views (512 px, 2 x 2 supersampled) are
-  re-rendered every frame: what a user dragging the mouse sees;
+- ``orbit``: the camera turns every frame, so both views (at their size on screen, 2 x 2
+  supersampled) are re-rendered every frame: what a user dragging the mouse sees;
 - ``still``: the camera rests; only the live texture updates re-render the downsampled view;
 - ``idle``: as ``still``, with hello_imgui's idling on as in the app (no input events: frames
   come at its ``fps_idle``), i.e. a user watching the run without touching anything.

@@ -1,9 +1,12 @@
 """The desktop app, driven through its UI by the imgui test engine (``immapp`` runner, Xvfb).
 
-One session, as an artist would use it: the app opens on the demo asset, the views show two
-different non-empty pictures, Start trains (the step counter advances and the downsampled view
-changes), a view is bookmarked and A/B-compared, the result is exported and loads again, and a
-bad file shows an error while the app keeps running.
+One session, as an artist would use it: the app opens on the demo asset, sized to the screen,
+its views filling their window with the mesh framed in them, and the Optimise fields show the
+steps and time budget the run will use (emptied: the method's default steps, "no limit");
+the views show two different non-empty pictures, Start trains (the step counter advances, the
+downsampled view changes, bicubic's level is on the PSNR plot from the first validation), a
+view is bookmarked and A/B-compared, the result is exported and loads again, a bad file shows
+an error while the app keeps running, and the layout is kept in the given file for next time.
 
 Set ``GEOSCALER_UPDATE_SCREENSHOT=1`` to also write the mid-training capture to docs/app.png.
 """
@@ -21,6 +24,7 @@ from app_support import import_app_module, unavailable
 from PIL import Image
 
 from geoscaler.io import load_mesh
+from geoscaler.methods.direct import DEFAULT_CONFIG
 from geoscaler.procedural import demo_mesh
 
 DOCS_SCREENSHOT = Path(__file__).resolve().parents[1] / "docs" / "app.png"
@@ -36,6 +40,29 @@ def is_picture(pixels: np.ndarray) -> bool:
     """A rendered mesh: a good share of non-black pixels with varied colour."""
     covered = pixels.max(axis=2) > 20
     return covered.mean() > 0.2 and pixels[covered].std() > 10
+
+
+def extent(pixels: np.ndarray) -> tuple[float, float]:
+    """The share of a view's width and height that the rendered mesh spans."""
+    rows, cols = np.nonzero(pixels.max(axis=2) > 20)
+    height, width = pixels.shape[:2]
+    return (np.ptp(cols) + 1) / width, (np.ptp(rows) + 1) / height
+
+
+def field_text(ctx, ref: str) -> str:
+    """The text an input field shows, read as a user would copy it (the edit is cancelled)."""
+    from imgui_bundle import imgui
+
+    ctx.item_click(ref)
+    ctx.key_press(imgui.Key.mod_ctrl | imgui.Key.a)
+    ctx.key_press(imgui.Key.mod_ctrl | imgui.Key.c)
+    ctx.key_press(imgui.Key.escape)
+    return imgui.get_clipboard_text()
+
+
+def optimise_fields(ctx) -> tuple[str, str]:
+    """What the Optimise window's steps and time budget fields show."""
+    return field_text(ctx, "//Optimise/steps"), field_text(ctx, "//Optimise/time budget (s)")
 
 
 def wait_until(ctx, condition, seconds: float) -> bool:
@@ -77,14 +104,39 @@ def test_a_session_in_the_app(gui_runner, tmp_path):
     shots = {name: tmp_path / f"{name}.png" for name in names}
     seen: dict = {}
 
+    def first_validation() -> None:
+        """Keep the PSNR axis and bicubic's level of the frame that plots one validation."""
+        if app.plots.validation_points == 1 and "first validation" not in seen:
+            seen["first validation"] = (app.plots.validation_limits, app.progress.bicubic_psnr)
+
     def session(ctx) -> None:
         ctx.yield_(3)
         testing.capture(ctx, str(shots["start"]))
         seen["rects"] = dict(app.views.rects)
+        window = ctx.get_window_by_ref("//Views")
+        seen["views window"] = (window.pos.x, window.pos.y, window.size.x, window.size.y)
         seen["first label"] = app.session.candidate_label
 
+        seen["fields"] = optimise_fields(ctx)
+        for name in ("steps", "time budget (s)"):
+            ctx.item_input_value(f"//Optimise/{name}", "")
+        seen["emptied"] = optimise_fields(ctx)
+        settings = app.state.settings
+        seen["emptied settings"] = (settings.steps, settings.time_budget)
+        ctx.item_input_value("//Optimise/steps", "400")
+        ctx.item_input_value("//Optimise/time budget (s)", "120")
+        seen["retyped"] = optimise_fields(ctx)
+
         ctx.item_click("//Optimise/Start")
-        assert wait_until(ctx, lambda: app.progress is not None and app.progress.step >= 6, 90)
+
+        def six_steps() -> bool:
+            first_validation()
+            return app.progress is not None and app.progress.step >= 6
+
+        assert wait_until(ctx, six_steps, 90)
+        wait_until(ctx, lambda: first_validation() or "first validation" in seen, 30)
+        seen["run"] = (app.training.options.steps, app.training.options.time_budget)
+        seen["total steps"] = app.progress.total_steps
         seen["steps"] = [app.progress.step]
         wait_until(ctx, lambda: app.progress.step >= seen["steps"][0] + 2, 30)
         seen["steps"].append(app.progress.step)
@@ -118,9 +170,39 @@ def test_a_session_in_the_app(gui_runner, tmp_path):
         seen["frames after error"] = app.frames - frames
 
     (tmp_path / "broken.obj").write_text("this is not a mesh\nf 1 2 3\n")
-    testing.run(
-        test_function=session, runner_params=app.runner_params(), add_ons_params=main.add_ons()
-    )
+    layout = tmp_path / "settings" / "app.ini"
+    params = app.runner_params(layout)
+    screen_size = main.default_window_size()  # while glfw runs (the app ends it on exit)
+    testing.run(test_function=session, runner_params=params, add_ons_params=main.add_ons())
+
+    # The window opens at the screen's size (not a fixed 1280 x 800); the two views share
+    # their window's width, and the mesh fills them (framed: 92% of the width or height).
+    assert screen_size != main.WINDOW_SIZE  # read from the screen (xvfb-run's 1600 x 1000)
+    assert Image.open(shots["start"]).size == screen_size
+    x, y, width, height = seen["views window"]
+    left, right = seen["rects"]["##original"], seen["rects"]["##downsampled"]
+    assert left[1] == right[1]  # side by side (the demo asset is about as wide as high)
+    assert right[2] - left[0] > width - 24  # the window's width, less its padding and the gap
+    assert right[3] > y + height - 16  # down to the window's bottom
+    for name in ("##original", "##downsampled"):
+        assert max(extent(crop(shots["start"], seen["rects"][name]))) > 0.85
+
+    # The Optimise fields show what the run will use: the steps and budget given, emptied the
+    # method's default steps (the CLI's) and no time limit, typed again what the run then used.
+    assert seen["fields"] == ("400", "120")
+    assert seen["emptied"] == (str(DEFAULT_CONFIG["steps"]), "no limit")
+    assert seen["emptied settings"] == (None, None)
+    assert seen["retyped"] == ("400", "120")
+    assert seen["run"] == (400, 120.0) and seen["total steps"] == 400
+
+    # The first validation's plot holds bicubic's level (the gain's zero) on its PSNR axis.
+    assert "first validation" in seen
+    (low, high), bicubic_psnr = seen["first validation"]
+    assert low < bicubic_psnr < high
+
+    # The window's size and docking layout are kept in the given file, for the next run.
+    kept = layout.read_text()
+    assert "[Docking][Data]" in kept and "[Window][Views]" in kept and "WindowSize=" in kept
 
     # Before training: two different, non-empty views (original | bicubic).
     original = crop(shots["start"], seen["rects"]["##original"])

@@ -8,6 +8,7 @@ import math
 import os
 import sys
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -254,3 +255,137 @@ def test_the_live_candidate_carries_the_uvs_of_a_warping_method(small_demo):
     assert state.uvs is not None and state.uvs.shape == small_demo.uvs.shape
     assert state.result.result.uvs is not None
     assert len(state.validation_ssim) == 1
+
+
+def test_the_run_settings_default_to_the_clis(small_demo):
+    """Steps: the method's own default; time budget: the CLI's 60 s; None is no limit."""
+    training = import_app_module("training")
+    from geoscaler.arguments import DEFAULT_TIME_BUDGET
+    from geoscaler.methods import default_steps
+    from geoscaler.methods.direct import DEFAULT_CONFIG
+    from geoscaler.methods.network import DEFAULT_PRESET, PRESETS
+
+    settings = training.TrainingSettings(evaluation=ONE_SMALL_VIEW)
+    assert settings.time_budget == DEFAULT_TIME_BUDGET == 60.0
+    assert settings.step_limit() == DEFAULT_CONFIG["steps"]
+    network_steps = PRESETS[DEFAULT_PRESET].optimize["steps"]
+    assert default_steps("geoscaler") == network_steps
+    assert default_steps("geoscaler-uvw") == network_steps
+    assert default_steps("geoscaler", {"preset": "paper"}) == 15_000
+    assert default_steps("direct", {"optimize": {"steps": 7, "lr": 0.1}}) == 7  # loop overrides
+    assert default_steps("bicubic") is None
+
+    run = training.Training(small_demo, settings)
+    assert run.options.time_budget == 60.0 and run.options.steps is None
+    assert run.read().total_steps == DEFAULT_CONFIG["steps"]
+    unlimited = training.Training(small_demo, replace(settings, steps=9, time_budget=None))
+    assert unlimited.options.time_budget is None and unlimited.options.steps == 9
+    assert unlimited.read().total_steps == 9
+    bicubic = training.Training(small_demo, replace(settings, method="bicubic"))
+    assert bicubic.options.time_budget is None  # as the CLI: no budget for a filter
+
+
+def test_the_optimise_fields_read_and_show_the_settings():
+    training = import_app_module("training")
+    panels = import_app_module("panels")
+    settings = training.TrainingSettings()
+    assert (panels.steps_text(settings), panels.budget_text(settings)) == ("300", "60")
+    assert "300 steps (direct's default) or 60 s" in panels.run_summary(settings)
+    panels.read_steps("250", settings)
+    panels.read_budget("12.5", settings)
+    assert (settings.steps, settings.time_budget) == (250, 12.5)
+    for half_typed in ("0", "-3", "2.5", "."):  # not a limit: the settings stay as they were
+        panels.read_steps(half_typed, settings)
+    for half_typed in ("0", "-3", ".", "1e999"):
+        panels.read_budget(half_typed, settings)
+    assert (settings.steps, settings.time_budget) == (250, 12.5)
+    panels.read_steps("", settings)
+    panels.read_budget("", settings)
+    assert (settings.steps, settings.time_budget) == (None, None)
+    assert (panels.steps_text(settings), panels.budget_text(settings)) == ("300", "no limit")
+    assert panels.run_summary(settings).endswith("no time limit")
+    panels.read_budget("no limit", settings)
+    assert settings.time_budget is None
+
+
+def test_plot_axes_hold_the_reference_and_their_ticks_fit():
+    panels = import_app_module("panels")
+    low, high = panels.padded([37.6, 38.4, 38.1, 37.06])  # bicubic's level below the curve
+    assert low < 37.06 and high > 38.4
+    assert panels.padded([float("nan")]) is None
+    low, high = panels.padded([36.0])  # one validation: a small span around it
+    assert low < 36.0 < high
+    for lo, hi, count in [(98.0, 202.0, 3), (98.0, 202.0, 8), (0.4, 30.6, 4), (35.0, 36.1, 6)]:
+        ticks = panels.nice_ticks(lo, hi, count)
+        assert 2 <= len(ticks) <= count and lo <= ticks[0] and ticks[-1] <= hi
+        steps = np.diff(ticks)
+        assert np.allclose(steps, steps[0])
+        mantissa = steps[0] / 10 ** math.floor(math.log10(steps[0]))
+        assert min(abs(mantissa - m) for m in (1, 2, 5)) < 1e-9
+    assert panels.nice_ticks(100.0, 200.0, 3) == [100.0, 150.0, 200.0]
+
+
+def stretched(mesh, factors):
+    """``mesh`` with its positions scaled per axis (a wide or tall version of it)."""
+    return replace(mesh, positions=(mesh.positions * np.float32(factors)).astype(np.float32))
+
+
+def project(orbit, points: np.ndarray, aspect: float) -> np.ndarray:
+    """Normalised device coordinates ``(N, 2)`` of ``points`` in a view ``aspect`` wide, as the
+    app's renderer projects them."""
+    gl_renderer = import_app_module("gl_renderer")
+    scale = np.diag([*gl_renderer.view_scale(aspect, 1.0), 1.0, 1.0])
+    clip = gl_renderer.pan_matrix(orbit.pan) @ scale @ orbit.camera().clip_matrix()
+    homogeneous = np.c_[points, np.ones(len(points))] @ clip.T
+    return homogeneous[:, :2] / homogeneous[:, 3:]
+
+
+@pytest.mark.parametrize(
+    ("factors", "aspect"), [((3, 1, 1), 4.0), ((1, 3, 1), 0.5), ((1, 1, 1), 1.0)]
+)
+def test_framing_fills_the_view_with_the_mesh(app_modules, small_demo, factors, aspect):
+    """Wide, tall and square meshes in views of their shape: the mesh's outline is centred and
+    spans FILL of the view's width or height, so nothing of it is cut off."""
+    orbit_module = app_modules["orbit"]
+    points = stretched(small_demo, factors).normalized_positions()
+    orbit = orbit_module.Orbit()
+    orbit.frame(points, aspect)
+    ndc = project(orbit, points, aspect)
+    low, high = ndc.min(axis=0), ndc.max(axis=0)
+    assert np.abs(low + high).max() < 1e-6  # centred
+    assert (high - low).max() == pytest.approx(2 * orbit_module.FILL, abs=1e-3)
+    assert orbit_module.MIN_DISTANCE <= orbit.distance <= orbit_module.MAX_DISTANCE
+
+
+def test_two_views_stack_for_a_wide_mesh():
+    views = import_app_module("views")
+    stacked, width, height = views.split_views(1000.0, 600.0, outline=(4.0, 1.0), label=20.0)
+    assert stacked and width == 1000.0 and height == (600.0 - views.GAP) / 2 - 20.0
+    stacked, width, height = views.split_views(1000.0, 600.0, outline=(1.0, 2.0), label=20.0)
+    assert not stacked and width == (1000.0 - views.GAP) / 2 and height == 600.0 - 20.0
+    assert not views.split_views(1000.0, 600.0, outline=(1.2, 1.0))[0]  # about square
+    assert views.pixel_shape(500.0, 300.0, 2.0) == (1000, 600)  # one texel a pixel
+    width, height = views.pixel_shape(4000.0, 2000.0, 1.0)  # capped, the shape kept
+    assert width * height <= views.MAX_VIEW_PIXELS and width == pytest.approx(2 * height, abs=1)
+
+
+def test_a_wide_view_of_a_wide_mesh_is_filled(app_modules, small_demo):
+    """The GL views render at any shape: a wide mesh framed in a 4:1 target reaches across it,
+    none of it cut off."""
+    ctx = gl_context()
+    gl_renderer = import_app_module("gl_renderer")
+    wide = stretched(small_demo, (3, 1, 1))
+    renderer = gl_renderer.GLRenderer(ctx, wide, image_size=64)
+    surface = renderer.reference_surface()
+    orbit = app_modules["orbit"].Orbit()
+    orbit.frame(wide.normalized_positions(), 4.0)
+    target = renderer.target((256, 64))
+    _, covered = renderer.render(orbit.camera(), surface, target, orbit.pan).read()
+    assert covered.shape == (64, 256)
+    rows, cols = np.nonzero(covered)
+    spans = ((np.ptp(cols) + 1) / 256, (np.ptp(rows) + 1) / 64)
+    assert max(spans) > 0.85  # filled across (FILL: 0.92)
+    assert not (covered[0].any() or covered[-1].any())  # nothing cut off
+    assert not (covered[:, 0].any() or covered[:, -1].any())
+    target.release()
+    surface.release()
