@@ -498,6 +498,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def printable(text: str) -> str:
+    """``text`` with control characters escaped (``\\x1b``), so that a file name cannot
+    drive the user's terminal through an error message."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def main(
     argv: list[str] | None = None,
     *,
@@ -515,7 +521,7 @@ def main(
     try:
         args.run(args)
     except GeoscalerError as error:
-        print(f"geoscaler: error: {error}", file=sys.stderr)
+        print(f"geoscaler: error: {printable(str(error))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("geoscaler: interrupted", file=sys.stderr)

@@ -98,3 +98,12 @@ def test_saved_png_has_usual_permissions(tmp_path):
 def test_check_output_needs_an_existing_folder(tmp_path):
     with pytest.raises(GeoscalerError, match="does not exist"):
         check_output(tmp_path / "nope" / "a.png", force=False)
+
+
+def test_control_characters_in_names_are_escaped_in_errors(tmp_path, capsys):
+    """A file name cannot drive the terminal: escape sequences are printed escaped."""
+    name = tmp_path / "evil\x1b[2J\x07.obj"
+    assert main(["info", str(name)]) == 2
+    err = capsys.readouterr().err
+    assert "\x1b" not in err and "\x07" not in err
+    assert "evil\\x1b[2J\\x07.obj" in err and err.count("\n") == 1

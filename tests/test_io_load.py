@@ -455,3 +455,11 @@ def test_broken_input_raises_a_geoscaler_error_naming_the_file(tmp_path: Path, n
         load_mesh(path)
     assert path.name in str(info.value)
     assert words in str(info.value)
+
+
+def test_obj_and_mtl_that_start_with_a_byte_order_mark_load(tmp_path):
+    """Editors on Windows save UTF-8 with a BOM; ``mtllib`` must still be recognised."""
+    bom = "\ufeff"
+    path = write_obj_asset(tmp_path, obj=bom + QUAD_OBJ, mtl=bom + "newmtl mat\nmap_Kd tex.png\n")
+    mesh = load_mesh(path)
+    np.testing.assert_array_equal(mesh.materials[0].base_color_texture, TEXTURE)

@@ -9,6 +9,7 @@ baked into the written texture by :mod:`geoscaler.io.save`.
 
 from __future__ import annotations
 
+import codecs
 import io
 import warnings
 from dataclasses import dataclass, field
@@ -72,7 +73,7 @@ def load_obj(path: Path) -> tuple[list[Part], list[MaterialBuilder], list[Path]]
         The OBJ, the MTL libraries and every map they reference, resolved.
     """
     root = path.parent.resolve()
-    data = path.read_bytes()
+    data = path.read_bytes().removeprefix(codecs.BOM_UTF8)  # editors on Windows write one
     libraries = _obj_libraries(_decode_text(data), path, root)
     entries: dict[str, _MtlEntry] = {}
     for library in libraries:
@@ -90,8 +91,9 @@ def load_obj(path: Path) -> tuple[list[Part], list[MaterialBuilder], list[Path]]
 
 
 def _decode_text(data: bytes) -> str:
+    """Text of an OBJ or MTL file: UTF-8 (a leading byte-order mark dropped), else Latin-1."""
     try:
-        return data.decode("utf-8")
+        return data.decode("utf-8-sig")
     except UnicodeDecodeError:
         return data.decode("latin-1")
 
