@@ -19,7 +19,7 @@ import numpy as np
 
 from geoscaler.errors import GeoscalerError
 from geoscaler.filters import check_scale
-from geoscaler.methods import MethodOptions, is_learned, method_names
+from geoscaler.methods import MethodOptions, get_method, is_learned, method_names
 from geoscaler.methods.network import check_preset, check_variant
 from geoscaler.protocol import VIEWS
 from geoscaler.render import resolve_device
@@ -40,11 +40,10 @@ def check_scales(scales: Sequence[Any]) -> list[int]:
 
 def check_method(name: str, flag: str = "--method") -> str:
     """The name of a registered method (or variant alias), given with ``flag``."""
-    if name not in method_names():
-        raise GeoscalerError(
-            f"{flag} {name!r}: unknown method; choose one of: {', '.join(method_names())}"
-        )
-    return name
+    try:
+        return get_method(name).name
+    except GeoscalerError as error:
+        raise GeoscalerError(f"{flag} {error}") from None
 
 
 def check_methods(text: str | None, variants: str | None = None) -> list[str]:

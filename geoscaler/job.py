@@ -27,7 +27,7 @@ import numpy as np
 from geoscaler.arguments import check_distances, check_method, check_scale, check_scales
 from geoscaler.cameras import view_set_cameras
 from geoscaler.errors import GeoscalerError
-from geoscaler.filters import lanczos, output_sizes, reference_textures
+from geoscaler.filters import lanczos, output_sizes, reference_texture
 from geoscaler.io import (
     check_output,
     check_outputs,
@@ -134,14 +134,17 @@ def checked_output_sizes(mesh: TexturedMesh, scale: int) -> list[tuple[int, int]
 def ship_textures(
     mesh: TexturedMesh, textures: Sequence[np.ndarray | None], scale: int
 ) -> list[np.ndarray | None]:
-    """The method's textures as they will be written: where the reference has alpha and the
-    method returned RGB only (learned methods optimise colour), the reference's alpha is
-    downsampled with Lanczos and appended, so cut-outs survive."""
+    """The method's textures as they will be written: where the original has alpha and the
+    method returned RGB only (learned methods optimise colour), the reference map's alpha is
+    downsampled with Lanczos and appended, so cut-outs survive. (The reference map, a resize of
+    the original when it is over 2048 texels, is made only where alpha is needed.)"""
     shipped: list[np.ndarray | None] = []
-    for texture, reference in zip(textures, reference_textures(mesh), strict=True):
-        if texture is not None and reference is not None:
-            if texture.shape[2] == 3 and reference.shape[2] in (2, 4):
-                alpha = lanczos(np.ascontiguousarray(reference[..., -1:]), scale)
+    for texture, material in zip(textures, mesh.materials, strict=True):
+        original = material.base_color_texture
+        if texture is not None and original is not None:
+            if texture.shape[2] == 3 and original.shape[2] in (2, 4):
+                alpha = reference_texture(original)[..., -1:]
+                alpha = lanczos(np.ascontiguousarray(alpha), scale)
                 texture = np.concatenate([texture, alpha.reshape(*texture.shape[:2], 1)], axis=2)
         shipped.append(texture)
     return shipped

@@ -348,7 +348,8 @@ def optimize(
         renderer: the mesh's renderer (its device is the device of the run).
         model: the candidate's parameters.
         config: loop settings.
-        validation: the cached validation views (Q), with taps for the candidate's sizes.
+        validation: the cached validation views (Q), with taps for the candidate's texture
+            sizes (which the training pool's taps take too).
         on_event: receives :class:`ProgressEvent` reports.
         controller: lets another thread pause, resume or stop the loop.
         keeps_uvs: the model never changes UVs, so texture taps can be cached.
@@ -365,17 +366,15 @@ def optimize(
     start = time.perf_counter() if started_at is None else started_at
     controller = controller or Controller()
     emit = on_event or (lambda event: None)
-    textures, _ = model.candidate()
-    sizes = [None if t is None else tuple(t.shape[:2]) for t in textures]
     train, seen = cache_training_views(
-        renderer, sizes, config, keeps_uvs, training_cameras, start, emit
+        renderer, validation.sizes, config, keeps_uvs, training_cameras, start, emit
     )
     optimizer = torch.optim.AdamW(
         list(model.parameters()), lr=config.lr, weight_decay=config.weight_decay
     )
     generator = torch.Generator().manual_seed(config.seed)
 
-    def candidate() -> tuple[list[torch.Tensor | None], torch.Tensor | None]:
+    def candidate() -> Candidate:
         with torch.no_grad():
             textures, uvs = model.candidate()
             copies = [None if t is None else t.detach().clone() for t in textures]

@@ -140,7 +140,7 @@ def get_method(name: str) -> Method:
     the known ones."""
     if name not in _METHODS:
         known = ", ".join(method_names())
-        raise GeoscalerError(f"unknown method {name!r}; choose one of: {known}")
+        raise GeoscalerError(f"{name!r}: unknown method; choose one of: {known}")
     return _METHODS[name]
 
 
