@@ -23,12 +23,14 @@ DEFAULT_DEMO_DIR = Path("assets")
 def mesh_info(path: Path) -> dict:
     """Facts about a mesh file: sizes, materials, textures, UV charts and texture coverage."""
     from geoscaler.io import load_mesh
-    from geoscaler.uvmaps import chart_labels, uv_coverage
+    from geoscaler.mesh import uv_coverage
+    from geoscaler.uvmaps import chart_labels
 
     mesh = load_mesh(path)
     materials = []
     for index, material in enumerate(mesh.materials):
         texture = material.base_color_texture
+        coverage = None if texture is None else uv_coverage(mesh, index)
         materials.append(
             {
                 "name": material.name,
@@ -36,7 +38,7 @@ def mesh_info(path: Path) -> dict:
                 "texture_size": None if texture is None else [texture.shape[1], texture.shape[0]],
                 "channels": None if texture is None else int(texture.shape[2]),
                 "base_color_factor": [round(float(x), 6) for x in material.base_color_factor],
-                "uv_coverage": None if texture is None else round(uv_coverage(mesh, index), 4),
+                "uv_coverage": None if coverage is None else round(coverage, 4),
             }
         )
     return {
@@ -66,8 +68,9 @@ def _print_info(info: dict) -> None:
             texture = "no base-colour texture"
         else:
             width, height = material["texture_size"]
-            coverage = 100 * material["uv_coverage"]
-            texture = f"{width} x {height} x {material['channels']}, UV coverage {coverage:.1f}%"
+            coverage = material["uv_coverage"]
+            measured = "not measured" if coverage is None else f"{100 * coverage:.1f}%"
+            texture = f"{width} x {height} x {material['channels']}, UV coverage {measured}"
         print(
             f"material {index} {material['name']!r}: {material['faces']:,} faces, {texture}, "
             f"factor ({factor})"

@@ -312,3 +312,180 @@ def compute_vertex_normals(
         axis=1,
     )
     return normalize_rows(summed[vertex_to_point], np.array([0.0, 0.0, 1.0])).astype(np.float32)
+
+
+# ----------------------------------------------------------------------------- sanity and measures
+
+MAX_COORDINATE = 1e15
+"""Largest position coordinate accepted (file units): squared, it stays far inside float32."""
+MIN_EXTENT = 1e-15
+"""Smallest mesh accepted: the farthest vertex from the bounding-box centre, in file units.
+Below it the protocol's normalisation (a float32 scale to the unit sphere) loses the shape."""
+MAX_UV = 1e4
+"""Largest UV magnitude accepted, in texture repeats: float32 UVs there are spaced about 0.001
+apart (two texels of a 2048 map), and the level of detail of farther ones overflows."""
+MIN_TEXTURED_AREA = 1e-6
+"""Smallest total area of the textured faces, in the protocol's unit scene: about 0.07 pixel
+squared in a 512 x 512 view at the validation distance, so nothing of the texture is seen."""
+
+
+def check_geometry(mesh: TexturedMesh, what: str) -> None:
+    """Raise ``GeoscalerError`` unless the mesh can be rendered and its texture seen.
+
+    The one geometry check of the project, made where a mesh is loaded: the vertices
+    (:func:`check_vertices`) and the textured faces (:func:`check_visible`).
+
+    Parameters
+    ----------
+    mesh : TexturedMesh
+    what : str
+        The start of each message (the mesh file's name).
+    """
+    check_vertices(mesh.positions, mesh.uvs, what)
+    check_visible(mesh, what)
+
+
+def check_vertices(positions: np.ndarray, uvs: np.ndarray, what: str) -> None:
+    """Refuse (``GeoscalerError``) NaN or infinite positions or UVs, coordinates beyond
+    :data:`MAX_COORDINATE`, a mesh smaller than :data:`MIN_EXTENT` and UVs beyond
+    :data:`MAX_UV`. ``positions`` ``(V, 3)``, ``uvs`` ``(V, 2)``; ``what`` starts each message.
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    uvs = np.asarray(uvs, dtype=np.float64)
+    if not (np.isfinite(positions).all() and np.isfinite(uvs).all()):
+        raise GeoscalerError(
+            f"{what}: has NaN or infinite vertex positions or UVs; repair the mesh and re-export"
+        )
+    largest = float(np.abs(positions).max(initial=0.0))
+    if largest > MAX_COORDINATE:
+        raise GeoscalerError(
+            f"{what}: has vertex coordinates up to {largest:.3g}, beyond what GeoScaler reads "
+            f"({MAX_COORDINATE:.0e}); scale the mesh down or move it near the origin in your "
+            "3D tool and re-export"
+        )
+    if len(positions):
+        centre = (positions.min(axis=0) + positions.max(axis=0)) / 2
+        extent = float(np.linalg.norm(positions - centre, axis=1).max())
+        if extent < MIN_EXTENT:
+            size = "all its vertices at one point" if extent == 0 else f"{extent:.3g} units across"
+            raise GeoscalerError(
+                f"{what}: is too small to render ({size}; at least {MIN_EXTENT:.0e} is needed); "
+                "scale it up in your 3D tool and re-export"
+            )
+    farthest = float(np.abs(uvs).max(initial=0.0))
+    if farthest > MAX_UV:
+        raise GeoscalerError(
+            f"{what}: has UVs up to {farthest:.3g} texture repeats from the origin; GeoScaler "
+            f"reads UVs within +-{MAX_UV:,.0f} (float32 cannot address texels farther out). "
+            "Move each UV chart by whole repeats towards [0, 1] and re-export"
+        )
+
+
+def check_visible(mesh: TexturedMesh, what: str) -> None:
+    """Refuse (``GeoscalerError``) a mesh whose textured faces are all degenerate (zero area)
+    or together smaller than :data:`MIN_TEXTURED_AREA` in the protocol's unit scene.
+    Its vertices must have passed :func:`check_vertices`."""
+    textured = [i for i, m in enumerate(mesh.materials) if m.base_color_texture is not None]
+    faces = mesh.faces[np.isin(mesh.face_material, textured)]
+    corners = mesh.normalized_positions().astype(np.float64)[faces]
+    doubled = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    area = float(np.linalg.norm(doubled, axis=1).sum() / 2)
+    if area <= 0:
+        raise GeoscalerError(
+            f"{what}: all {len(faces):,} textured triangles are degenerate (their corners "
+            "coincide or lie on a line), so nothing textured can be seen; repair the mesh"
+        )
+    if area < MIN_TEXTURED_AREA:
+        raise GeoscalerError(
+            f"{what}: its textured triangles are too small to be seen in any view (together "
+            f"{area:.2g} of the unit sphere the mesh is scaled to); repair the mesh"
+        )
+
+
+COVERAGE_WORK = 20_000_000
+"""Most (face, texel row) spans :func:`uv_coverage` walks: about a second of numpy work."""
+_CHUNK = 1_000_000
+
+
+def uv_coverage(mesh: TexturedMesh, material: int = 0, resolution: int = 512) -> float | None:
+    """Fraction of the texture's area covered by at least one face of ``material``.
+
+    Texel centres of a ``resolution x resolution`` grid inside a face count, with repeat
+    addressing (UVs outside ``[0, 1]`` wrap). The cost grows with the texel rows the faces
+    span, not with their area: each face is walked row by row, or column by column when it is
+    taller than wide, into a per-row difference array. Identical faces count once, and a face
+    that contains a whole texture repeat (an inscribed circle of radius at least
+    ``sqrt(2) / 2``) covers everything. When the faces span more rows than
+    :data:`COVERAGE_WORK` allows, the grid is halved (the figure is then measured on the
+    coarser grid), down to 64 texels; beyond that the coverage is not measured (None).
+
+    Returns
+    -------
+    float or None
+        In ``[0, 1]``; 0 for a material without faces.
+    """
+    faces = mesh.faces[mesh.face_material == material]
+    corners = np.asarray(mesh.uvs, dtype=np.float64)[faces]  # (F, 3, 2)
+    corners = corners - np.floor(corners.mean(axis=1, keepdims=True))
+    corners = np.unique(corners.reshape(-1, 6), axis=0).reshape(-1, 3, 2)
+    if not len(corners):
+        return 0.0
+    edges = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).sum(axis=1)
+    side, other = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    doubled_area = np.abs(side[:, 0] * other[:, 1] - side[:, 1] * other[:, 0])
+    if (doubled_area >= edges * np.sqrt(0.5)).any():  # inradius = 2 area / perimeter
+        return 1.0
+    extent = corners.max(axis=1) - corners.min(axis=1)  # (F, 2) in repeats
+    by_columns = extent[:, 1] > extent[:, 0]
+    work = float(np.minimum(extent[:, 0], extent[:, 1]).sum()) + len(corners) / resolution
+    while work * resolution > COVERAGE_WORK:
+        if resolution <= 64:
+            return None
+        resolution //= 2
+    texels = corners * resolution
+    texels[..., 1] = resolution - texels[..., 1]  # row 0 at the top, as everywhere
+    covered = _row_coverage(texels[~by_columns], resolution)
+    covered |= _row_coverage(texels[by_columns][..., ::-1], resolution).T
+    return float(covered.mean())
+
+
+def _row_coverage(corners: np.ndarray, size: int) -> np.ndarray:
+    """``(size, size)`` bool: texel centres ``(col + 0.5, row + 0.5)`` inside any triangle of
+    ``(F, 3, 2)`` ``(x, y)`` texel coordinates, wrapped onto the grid, walked row by row."""
+    lo = np.ceil(corners[..., 1].min(axis=1) - 0.5).astype(np.int64)
+    hi = np.floor(corners[..., 1].max(axis=1) - 0.5).astype(np.int64)
+    rows = np.maximum(hi - lo + 1, 0)
+    ends = np.cumsum(rows)
+    counts = np.zeros(size * (size + 1), dtype=np.int64)  # + at a span's start, - at its end
+    for first in range(0, int(ends[-1]) if len(ends) else 0, _CHUNK):
+        pair = np.arange(first, min(first + _CHUNK, int(ends[-1])))
+        face = np.searchsorted(ends, pair, side="right")
+        row = lo[face] + pair - (ends[face] - rows[face])
+        left, right = _spans(corners[face], row + 0.5)
+        keep = np.isfinite(left) & np.isfinite(right)
+        col0 = np.ceil(left[keep] - 0.5).astype(np.int64)
+        length = np.floor(right[keep] - 0.5).astype(np.int64) + 1 - col0
+        row, col0 = np.mod(row[keep], size), np.mod(col0, size)
+        end = col0 + np.clip(length, 0, size)  # beyond size: wraps to the row's start
+        flat = row * (size + 1)
+        wrapped = end > size
+        opened = np.concatenate([flat + col0, flat[wrapped]])
+        closed = np.concatenate([flat + np.minimum(end, size), flat[wrapped] + end[wrapped] - size])
+        counts += np.bincount(opened, minlength=counts.size) - np.bincount(
+            closed, minlength=counts.size
+        )
+    return np.cumsum(counts.reshape(size, size + 1), axis=1)[:, :size] > 0
+
+
+def _spans(corners: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Left and right x of ``(N, 3, 2)`` triangles at heights ``(N,)``: where the edges that
+    straddle ``y`` cross it (left > right where none does)."""
+    a, b = corners, np.roll(corners, -1, axis=1)
+    dy = b[..., 1] - a[..., 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (y[:, None] - a[..., 1]) / dy
+    x = a[..., 0] + t * (b[..., 0] - a[..., 0])
+    crossing = (dy != 0) & (t >= 0) & (t <= 1)
+    left = np.where(crossing, x, np.inf).min(axis=1)
+    right = np.where(crossing, x, -np.inf).max(axis=1)
+    return left, right

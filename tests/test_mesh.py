@@ -2,13 +2,25 @@
 
 from __future__ import annotations
 
+import time
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from mesh_support import TEXTURE, two_material_mesh
 
 from geoscaler.errors import GeoscalerError
 from geoscaler.filters import box
-from geoscaler.mesh import TextureError, check_texture, compute_vertex_normals, weld_points
+from geoscaler.mesh import (
+    Material,
+    TexturedMesh,
+    TextureError,
+    check_geometry,
+    check_texture,
+    compute_vertex_normals,
+    uv_coverage,
+    weld_points,
+)
 
 
 def test_with_texture_returns_an_edited_copy():
@@ -53,3 +65,112 @@ def test_weld_points_and_vertex_normals():
     normals = compute_vertex_normals(positions, faces, weld_points(positions))
     assert normals.dtype == np.float32
     np.testing.assert_allclose(normals, [[0, 0, 1]] * 5)
+
+
+def triangle_soup(uvs: np.ndarray, positions: np.ndarray | None = None) -> TexturedMesh:
+    """One textured triangle per ``(3, 2)`` row of ``uvs`` ``(F, 3, 2)``, corners unshared."""
+    count = len(uvs) * 3
+    if positions is None:
+        positions = np.tile(np.float32([[0, 0, 0], [1, 0, 0], [0, 1, 0]]), (len(uvs), 1))
+    return TexturedMesh(
+        positions=positions.astype(np.float32),
+        faces=np.arange(count).reshape(-1, 3),
+        uvs=np.asarray(uvs, np.float32).reshape(-1, 2),
+        normals=np.tile(np.float32([0, 0, 1]), (count, 1)),
+        vertex_to_point=np.arange(count),
+        face_material=np.zeros(len(uvs), np.int64),
+        materials=[Material("m", TEXTURE)],
+    )
+
+
+def brute_force_coverage(mesh: TexturedMesh, size: int) -> float:
+    """Texel centres inside any face shifted by any whole number of repeats: the definition."""
+    centres = (np.arange(size) + 0.5) / size
+    u, v = np.meshgrid(centres, 1 - centres)
+    covered = np.zeros(u.shape, bool)
+    for a, b, c in mesh.uvs[mesh.faces].astype(np.float64):
+        low, high = np.floor(np.minimum(np.minimum(a, b), c)), np.ceil(np.maximum(a, b))
+        high = np.maximum(high, np.ceil(c))
+        for i in range(int(low[0]), int(high[0]) + 1):
+            for j in range(int(low[1]), int(high[1]) + 1):
+                x, y = u + i, v + j
+                sides = [
+                    (q[0] - p[0]) * (y - p[1]) - (q[1] - p[1]) * (x - p[0])
+                    for p, q in ((a, b), (b, c), (c, a))
+                ]
+                inside = (sides[0] >= 0) & (sides[1] >= 0) & (sides[2] >= 0)
+                covered |= inside | ((sides[0] <= 0) & (sides[1] <= 0) & (sides[2] <= 0))
+    return float(covered.mean())
+
+
+@pytest.mark.parametrize("spread", [0.3, 1.5])
+def test_uv_coverage_counts_texel_centres_with_repeat_addressing(spread: float):
+    rng = np.random.default_rng(7)
+    mesh = triangle_soup(rng.normal(size=(6, 3, 2)) * spread)
+    assert uv_coverage(mesh, 0, 64) == brute_force_coverage(mesh, 64)
+
+
+def test_uv_coverage_of_simple_layouts():
+    half = np.float32([[[0, 0], [1, 0], [0, 1]]])
+    assert uv_coverage(triangle_soup(half), 0, 64) == 2080 / 64**2  # u + v <= 1
+    assert uv_coverage(triangle_soup(half + 3), 0, 64) == uv_coverage(triangle_soup(half), 0, 64)
+    assert uv_coverage(triangle_soup(np.concatenate([half, 1 - half])), 0, 64) == 1.0
+    assert uv_coverage(triangle_soup(half * 3), 0, 64) == 1.0  # holds a whole repeat
+    assert uv_coverage(replace(triangle_soup(half), face_material=np.ones(1, int)), 0) == 0.0
+
+
+def test_uv_coverage_costs_rows_not_area():
+    """40,000 copies of a face over the whole texture, and 20,000 faces tiling it 50 times
+    each way, take well under a second (the rasteriser took minutes: faces times area)."""
+    rng = np.random.default_rng(0)
+    half = np.float32([[0, 0], [1, 0], [0, 1]])
+    copies = triangle_soup(np.tile(half, (40_000, 1, 1)))
+    jittered = triangle_soup(half + rng.normal(size=(2_000, 1, 2)) * 1e-3)
+    cells = np.tile(np.stack([half, 1 - half]) * 0.5, (10_000, 1, 1))
+    tiles = triangle_soup(cells + rng.integers(0, 100, (20_000, 1, 2)) * 0.5)
+    start = time.perf_counter()
+    assert uv_coverage(copies) == uv_coverage(triangle_soup(half[None]))
+    assert 0.5 < uv_coverage(jittered) < 0.52
+    assert uv_coverage(tiles) == 1.0
+    assert time.perf_counter() - start < 3.0
+
+
+def test_uv_coverage_beyond_its_work_limit_is_not_measured():
+    """Long diagonal slivers across thousands of repeats: no figure rather than minutes."""
+    sliver = np.float32([[0, 0], [5000, 5000.1], [5000.01, 5000]])
+    assert (
+        uv_coverage(
+            triangle_soup(np.tile(sliver, (100, 1, 1)) + np.arange(100)[:, None, None] * 1e-3)
+        )
+        is None
+    )
+
+
+@pytest.mark.parametrize(
+    ("positions", "uvs", "message"),
+    [
+        ([[0, 0, 0], [1, 0, 0], [np.nan, 1, 0]], None, "NaN or infinite"),
+        ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0], [1, np.inf], [0, 1]], "NaN or infinite"),
+        ([[0, 0, 0], [1e20, 0, 0], [0, 1, 0]], None, "coordinates up to 1e\\+20"),
+        ([[0, 0, 0], [1e-40, 0, 0], [0, 1e-40, 0]], None, "too small to render"),
+        ([[1, 1, 1]] * 3, None, "all its vertices at one point"),
+        ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0], [1e30, 0], [0, 1]], "UVs up to 1e\\+30"),
+        ([[0, 0, 0], [1, 0, 0], [2, 0, 0]], None, "all 1 textured triangles are degenerate"),
+    ],
+)
+def test_check_geometry_refuses_what_cannot_be_rendered(positions, uvs, message):
+    uvs = np.float32([[0, 0], [1, 0], [0, 1]]) if uvs is None else np.float32(uvs)
+    mesh = triangle_soup(uvs[None], np.float32(positions))
+    with pytest.raises(GeoscalerError, match=f"^mesh.obj: .*{message}"):
+        check_geometry(mesh, "mesh.obj")
+
+
+def test_check_geometry_refuses_textured_faces_too_small_to_see():
+    """A big untextured face beside a speck of textured one: the texture cannot be seen."""
+    mesh = two_material_mesh()
+    positions = mesh.positions.copy()
+    positions[[0, 1, 2, 3], 0] *= 1e-4
+    positions[[0, 1, 2, 3], 1] *= 1e-4
+    with pytest.raises(GeoscalerError, match="too small to be seen"):
+        check_geometry(replace(mesh, positions=positions), "mesh.obj")
+    check_geometry(mesh, "mesh.obj")

@@ -19,6 +19,8 @@ from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import (
     Material,
     TexturedMesh,
+    check_vertices,
+    check_visible,
     compute_vertex_normals,
     first_occurrence_groups,
     normalize_rows,
@@ -89,8 +91,10 @@ def assemble(
     Raises
     ------
     GeoscalerError
-        No triangles, no base-colour texture at all, textured faces without UVs, NaN or
-        infinite positions or UVs.
+        No triangles, no base-colour texture at all, textured faces without UVs; vertices or
+        faces that :func:`geoscaler.mesh.check_vertices` and
+        :func:`geoscaler.mesh.check_visible` refuse (NaN, absurd sizes or UVs, nothing
+        textured to see).
     """
     if not parts:
         raise GeoscalerError(f"{path}: contains no triangles; GeoScaler needs a triangle mesh")
@@ -103,7 +107,7 @@ def assemble(
     _check_textures(path, parts, materials, slot)
     parts = sorted(parts, key=lambda p: slot[p.material])
     positions, uvs, normals, faces, face_material = _concatenate(parts, slot)
-    _check_finite(path, positions, uvs)
+    check_vertices(positions, uvs, str(path))
     group, first = first_occurrence_groups(np.concatenate([positions, uvs], axis=1))
     faces = group[faces]
     keep = np.zeros(len(first), dtype=bool)
@@ -115,7 +119,7 @@ def assemble(
     file_normals = _merge_normals(normals, group, keep)
     computed = compute_vertex_normals(positions, faces, vertex_to_point)
     has = np.isfinite(file_normals).all(axis=1)
-    return TexturedMesh(
+    mesh = TexturedMesh(
         positions=positions,
         faces=faces.astype(np.int64),
         uvs=uvs,
@@ -126,6 +130,8 @@ def assemble(
         source_path=path,
         source_files=list(dict.fromkeys(files)),
     )
+    check_visible(mesh, str(path))
+    return mesh
 
 
 def _check_textures(path: Path, parts: list[Part], materials: list[Material], slot) -> None:
@@ -160,13 +166,6 @@ def _concatenate(parts: list[Part], slot: dict) -> tuple[np.ndarray, ...]:
         [np.full(len(p.faces), slot[p.material], dtype=np.int64) for p in parts]
     )
     return positions, uvs, normals, faces, face_material
-
-
-def _check_finite(path: Path, positions: np.ndarray, uvs: np.ndarray) -> None:
-    if not (np.isfinite(positions).all() and np.isfinite(uvs).all()):
-        raise GeoscalerError(
-            f"{path}: has NaN or infinite vertex positions or UVs; repair the mesh and re-export"
-        )
 
 
 def _merge_normals(normals: np.ndarray, group: np.ndarray, keep: np.ndarray) -> np.ndarray:
