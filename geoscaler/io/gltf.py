@@ -22,11 +22,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import trimesh
+from PIL import Image
 
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import Material, TexturedMesh
 
 from .assemble import MaterialBuilder, Part, scene_parts
+from .gltf_check import buffer_data, check_data, check_structure
 from .images import decode_texture
 from .paths import FolderResolver, resolve_reference
 
@@ -89,15 +91,19 @@ def load_gltf(path: Path) -> tuple[list[Part], list[MaterialBuilder], list[Path]
     data = path.read_bytes()
     binary = path.suffix.lower() == ".glb"
     doc, chunk = _split_glb(data, path) if binary else (_parse_json(data, path), None)
+    check_structure(doc, path)
     files = [path.resolve(), *_check_gltf(doc, path, root)]
+    check_data(doc, path, buffer_data(doc, path, root, chunk))
     tagged = copy.deepcopy(doc)
     for index, material in enumerate(tagged.get("materials", [])):
         material["name"] = f"{_GLTF_TAG}{index}"
     payload = _pack_glb(tagged, chunk) if binary else json.dumps(tagged).encode()
-    scene = trimesh.load_scene(
-        io.BytesIO(payload), file_type=path.suffix.lower()[1:],
-        resolver=FolderResolver(path, root), process=False,
-    )  # fmt: skip
+    with warnings.catch_warnings():  # image sizes are checked before decoding, in our words
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+        scene = trimesh.load_scene(
+            io.BytesIO(payload), file_type=path.suffix.lower()[1:],
+            resolver=FolderResolver(path, root), process=False,
+        )  # fmt: skip
     loaded: dict[int, Any] = {}
 
     def material_of(material: Any) -> int | None:
@@ -116,9 +122,12 @@ def load_gltf(path: Path) -> tuple[list[Part], list[MaterialBuilder], list[Path]
 
 
 def _parse_json(data: bytes, path: Path) -> dict:
+    def refuse_constant(name: str) -> None:
+        raise ValueError(f"{name} is not a JSON number")
+
     try:
-        doc = json.loads(data)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        doc = json.loads(data, parse_constant=refuse_constant)
+    except (UnicodeDecodeError, ValueError) as exc:
         raise GeoscalerError(
             f"{path}: not valid glTF JSON ({exc}). The file may be corrupt or truncated: "
             "re-export it from your 3D tool."
@@ -135,15 +144,22 @@ def _split_glb(data: bytes, path: Path) -> tuple[dict, bytes | None]:
             f"{path}: not a GLB file (no 'glTF' header). It may be corrupt, or a glTF JSON "
             "file: then name it .gltf."
         )
-    version = struct.unpack_from("<I", data, 4)[0]
+    version, length = struct.unpack_from("<II", data, 4)
     if version != 2:
         raise GeoscalerError(f"{path}: GLB version {version}; only glTF 2.0 is supported")
+    if length != len(data):
+        raise GeoscalerError(
+            f"{path}: its GLB header gives a length of {length} bytes, the file has "
+            f"{len(data)}: it is truncated or corrupt; re-export or re-download it"
+        )
     doc, chunk, offset = None, None, 12
     while offset + 8 <= len(data):
         size, kind = struct.unpack_from("<I4s", data, offset)
         body = data[offset + 8 : offset + 8 + size]
         if len(body) < size:
             raise GeoscalerError(f"{path}: truncated GLB file; re-export or re-download it")
+        if offset == 12 and kind != b"JSON":
+            raise GeoscalerError(f"{path}: GLB file whose first chunk is not JSON; it is corrupt")
         if kind == b"JSON" and doc is None:
             doc = _parse_json(body, path)
         elif kind == b"BIN\x00" and chunk is None:
@@ -253,6 +269,13 @@ def _gltf_material(path: Path, doc: dict, index: int, pbr: Any) -> Material:
             f"{path}: the base-colour image {_image_label(doc, info['index'], path)} of "
             f"material {name!r} could not be decoded. Re-save it as PNG or JPEG."
         )
+    for slot, keys in TEXTURE_SLOTS.items():  # every map decodes, before any work starts
+        image = getattr(pbr, slot, None) if slot != "baseColorTexture" else None
+        if image is not None:
+            map_info = _get_path(raw, keys)
+            index = map_info.get("index") if isinstance(map_info, dict) else None
+            label = _image_label(doc, index, path) if index is not None else f"{slot} of {name}"
+            decode_texture(image, label, path)
     if "baseColorFactor" in pbr_json:
         factor = np.asarray(pbr_json["baseColorFactor"], dtype=np.float32)
     elif pbr.baseColorFactor is not None:

@@ -9,6 +9,7 @@ the mesh file that references the image.
 from __future__ import annotations
 
 import io
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,12 @@ from PIL import Image
 
 from geoscaler.errors import GeoscalerError
 from geoscaler.texture import to_rgb
+
+MAX_TEXTURE_SIDE = 16384
+"""Widest or tallest texture GeoScaler decodes, in pixels (the largest GPUs' limit)."""
+MAX_TEXTURE_PIXELS = 8192 * 8192
+"""Most pixels of a texture GeoScaler decodes (268 MB as RGBA): checked from the image's
+header, before a byte of it is decompressed, so a small file cannot expand into gigabytes."""
 
 
 def image_to_texture(image: Image.Image) -> np.ndarray:
@@ -54,6 +61,7 @@ def decode_texture(image: Image.Image, label: str, owner: Path) -> np.ndarray:
 
     ``label`` names the image in the message, ``owner`` the mesh file that references it.
     """
+    check_image_size(image, label, owner)
     try:
         image.load()
         return image_to_texture(image)
@@ -64,11 +72,32 @@ def decode_texture(image: Image.Image, label: str, owner: Path) -> np.ndarray:
         ) from exc
 
 
+def check_image_size(image: Image.Image, label: str, owner: Path) -> None:
+    """Refuse an image larger than :data:`MAX_TEXTURE_SIDE` or :data:`MAX_TEXTURE_PIXELS`,
+    from its header (nothing is decoded); ``owner`` is the mesh file that references it."""
+    width, height = image.size
+    if max(width, height) > MAX_TEXTURE_SIDE or width * height > MAX_TEXTURE_PIXELS:
+        raise GeoscalerError(
+            f"{owner}: texture {label} is {width} x {height} pixels; GeoScaler decodes "
+            f"textures of up to {MAX_TEXTURE_PIXELS:,} pixels and {MAX_TEXTURE_SIDE} per side. "
+            "Resize it (GeoScaler reduces larger textures to 2048 anyway)."
+        )
+
+
+def open_image_bytes(data: bytes) -> Image.Image:
+    """``Image.open`` on bytes without Pillow's own decompression-bomb warning: the size is
+    checked by :func:`check_image_size` before decoding, with a message that says what to do."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+        return Image.open(io.BytesIO(data))
+
+
 def open_image(path: Path, owner: Path) -> Image.Image:
     """Open and fully decode an image file, errors as ``GeoscalerError`` naming ``owner``."""
     try:
-        with Image.open(path) as image:
-            image.load()
+        image = open_image_bytes(path.read_bytes())
+        check_image_size(image, str(path), owner)
+        image.load()
         return image
     except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
         raise GeoscalerError(

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import codecs
 import io
+import math
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -74,7 +75,9 @@ def load_obj(path: Path) -> tuple[list[Part], list[MaterialBuilder], list[Path]]
     """
     root = path.parent.resolve()
     data = path.read_bytes().removeprefix(codecs.BOM_UTF8)  # editors on Windows write one
-    libraries = _obj_libraries(_decode_text(data), path, root)
+    text = _decode_text(data)
+    _check_face_indices(text, path)
+    libraries = _obj_libraries(text, path, root)
     entries: dict[str, _MtlEntry] = {}
     for library in libraries:
         for entry in _parse_mtl(library, root):
@@ -96,6 +99,56 @@ def _decode_text(data: bytes) -> str:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError:
         return data.decode("latin-1")
+
+
+_ELEMENTS = {"v": "vertex", "vt": "texture coordinate", "vn": "normal"}
+
+
+def _check_face_indices(text: str, path: Path) -> None:
+    """Refuse a face corner that is not an index, is 0 or points past its list.
+
+    OBJ indices start at 1; negative ones count back from the last element defined before
+    the face. trimesh would read an index of 0 as the last element and one past the end as
+    another face's vertex.
+    """
+    lines = text.splitlines()
+    totals = dict.fromkeys(_ELEMENTS, 0)
+    for line in lines:
+        head = line.split(None, 1)[:1]
+        if head and head[0] in totals:
+            totals[head[0]] += 1
+    seen = dict.fromkeys(_ELEMENTS, 0)
+    for number, line in enumerate(lines, 1):
+        words = line.split()
+        if not words:
+            continue
+        if words[0] in seen:
+            seen[words[0]] += 1
+        elif words[0] == "f":
+            for corner in words[1:]:
+                _check_corner(corner, seen, totals, path, number)
+
+
+def _check_corner(corner: str, seen: dict, totals: dict, path: Path, number: int) -> None:
+    for kind, part in zip(_ELEMENTS, corner.split("/"), strict=False):
+        if not part:
+            continue
+        try:
+            index = int(part)
+        except ValueError:
+            index = None
+        where = f"{path}: line {number}: face corner {corner!r}"
+        if index is None or index == 0:
+            raise GeoscalerError(
+                f"{where} is not a {_ELEMENTS[kind]} index (OBJ indices start at 1); "
+                "repair the file or re-export it"
+            )
+        count = totals[kind] if index > 0 else seen[kind]
+        if abs(index) > count:
+            raise GeoscalerError(
+                f"{where} refers to {_ELEMENTS[kind]} {index}, but the file defines "
+                f"{count}{'' if index > 0 else ' before it'}; repair the file or re-export it"
+            )
 
 
 def _obj_material_index(material: Any) -> int | None:
@@ -135,13 +188,21 @@ def _parse_mtl(library: Path, root: Path) -> list[_MtlEntry]:
 
 
 def _read_mtl_statement(entry: _MtlEntry, key: str, rest: str, root: Path) -> None:
-    if key == "kd":
-        entry.diffuse = _mtl_color(rest)
-    elif key == "ke":
-        entry.emissive = _mtl_color(rest)
-    elif key == "d":
+    """One statement of a ``newmtl`` block; colours and dissolve are clamped to [0, 1]."""
+    if key in ("kd", "ke", "d"):
         value = _mtl_color(rest)
-        entry.dissolve = None if value is None else min(max(value[0], 0.0), 1.0)
+        if value is not None and not all(math.isfinite(x) for x in value):
+            raise GeoscalerError(
+                f"{entry.owner}: material {entry.name!r}: '{key} {rest}' is not a finite "
+                "number; fix the MTL file"
+            )
+        value = None if value is None else tuple(min(max(x, 0.0), 1.0) for x in value)
+        if key == "kd":
+            entry.diffuse = value
+        elif key == "ke":
+            entry.emissive = value
+        else:
+            entry.dissolve = None if value is None else value[0]
     elif key in _MTL_MAPS and _MTL_MAPS[key] not in entry.maps:
         slot, name = _MTL_MAPS[key], _mtl_map_file(rest)
         base = entry.owner.parent
@@ -211,6 +272,8 @@ def _obj_material(entry: _MtlEntry) -> Material:
             stacklevel=5,
         )
         del extra["normalTexture"]
+    for slot, image in extra.items():  # every map decodes, before any work starts
+        decode_texture(image, str(entry.maps[slot]), entry.owner)
     source = trimesh.visual.material.PBRMaterial(
         name=entry.name, emissiveFactor=entry.emissive, **extra
     )

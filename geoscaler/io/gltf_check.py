@@ -1,0 +1,366 @@
+"""The glTF 2.0 document checked before anything is read from it.
+
+trimesh reads what it is given and fills in what is missing: an index past the end of an
+accessor lands in the next primitive, an accessor without data becomes zeros, a node that is its
+own child recurses. Here the document is held to the specification first, one refusal per
+mistake, each naming where in the file it is (``accessors[2]``, ``nodes[0].children``):
+
+- :func:`check_structure`: every array is a list of objects, every index points at an existing
+  item, the node graph is a forest no deeper than :data:`MAX_NODE_DEPTH`, transforms and
+  material factors are finite numbers of the right count and range, enums are enums;
+- :func:`check_data`: buffers hold the bytes they claim, buffer views fit their buffers,
+  accessors their views (strides included), the attributes a primitive reads have data (not
+  Draco- or meshopt-compressed, not sparse) of the right type and equal counts, and its indices
+  point at its own vertices.
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from geoscaler.errors import GeoscalerError
+
+from .paths import resolve_reference
+
+MAX_NODE_DEPTH = 64
+"""Deepest node hierarchy accepted (scene roots are depth 1)."""
+
+COMPONENT_SIZES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+"""Accessor ``componentType`` -> bytes per component."""
+TYPE_SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+"""Accessor ``type`` -> components per element."""
+_ARRAYS = (
+    "accessors", "animations", "buffers", "bufferViews", "cameras", "images", "materials",
+    "meshes", "nodes", "samplers", "scenes", "skins", "textures",
+)  # fmt: skip
+_INDEX_TYPES = {5121: np.uint8, 5123: np.uint16, 5125: np.uint32}
+_UV_TYPES = {5126, 5121, 5123}
+_FILTERS = {9728, 9729, 9984, 9985, 9986, 9987}
+_WRAPS = {33071, 33648, 10497}
+_ALPHA_MODES = {"OPAQUE", "MASK", "BLEND"}
+_TEXTURE_INFOS = {
+    ("pbrMetallicRoughness", "baseColorTexture"),
+    ("pbrMetallicRoughness", "metallicRoughnessTexture"),
+    ("normalTexture",),
+    ("occlusionTexture",),
+    ("emissiveTexture",),
+}
+
+
+def _refuse(path: Path, where: str, problem: str) -> GeoscalerError:
+    return GeoscalerError(
+        f"{path}: {where} {problem}; the file breaks the glTF 2.0 specification. Re-export it "
+        "from your 3D tool (the Khronos glTF validator shows every such problem)."
+    )
+
+
+def _items(doc: dict, name: str) -> list:
+    return doc.get(name, [])
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def check_structure(doc: dict, path: Path) -> None:
+    """Hold the JSON document to the shape the glTF 2.0 schema gives it (see module doc)."""
+    for name in _ARRAYS:
+        value = doc.get(name, [])
+        if not isinstance(value, list) or not all(isinstance(item, dict) for item in value):
+            raise _refuse(path, f"'{name}'", "is not a list of objects")
+    for name in ("extensionsUsed", "extensionsRequired"):
+        value = doc.get(name, [])
+        if not isinstance(value, list) or not all(isinstance(item, str) for item in value):
+            raise _refuse(path, f"'{name}'", "is not a list of extension names")
+    if not isinstance(doc.get("asset"), dict):
+        raise _refuse(path, "'asset'", "is missing or not an object")
+    ref = _Refs(doc, path)
+    if "scene" in doc:
+        ref.index(doc["scene"], "scenes", "'scene'")
+    for s, scene in enumerate(_items(doc, "scenes")):
+        for node in _list(scene.get("nodes", []), path, f"scenes[{s}].nodes"):
+            ref.index(node, "nodes", f"scenes[{s}].nodes")
+    _check_nodes(doc, path, ref)
+    for m, mesh in enumerate(_items(doc, "meshes")):
+        primitives = _list(mesh.get("primitives"), path, f"meshes[{m}].primitives")
+        for p, primitive in enumerate(primitives):
+            where = f"meshes[{m}].primitives[{p}]"
+            if not isinstance(primitive, dict) or not isinstance(primitive.get("attributes"), dict):
+                raise _refuse(path, where, "has no 'attributes' object")
+            for name, accessor in primitive["attributes"].items():
+                ref.index(accessor, "accessors", f"{where}.attributes.{name}")
+            for key, array in (("indices", "accessors"), ("material", "materials")):
+                if key in primitive:
+                    ref.index(primitive[key], array, f"{where}.{key}")
+            mode = primitive.get("mode", 4)
+            if not _is_int(mode) or mode not in range(7):
+                raise _refuse(path, f"{where}.mode", f"is {primitive['mode']!r}, not 0 to 6")
+    for a, accessor in enumerate(_items(doc, "accessors")):
+        _check_accessor_fields(accessor, path, f"accessors[{a}]", ref)
+    for v, view in enumerate(_items(doc, "bufferViews")):
+        ref.index(view.get("buffer"), "buffers", f"bufferViews[{v}].buffer")
+        for key in ("byteOffset", "byteLength", "byteStride"):
+            if key in view or key == "byteLength":
+                ref.whole(view.get(key), f"bufferViews[{v}].{key}", low=int(key == "byteLength"))
+    for b, buffer in enumerate(_items(doc, "buffers")):
+        ref.whole(buffer.get("byteLength"), f"buffers[{b}].byteLength", low=1)
+    for i, image in enumerate(_items(doc, "images")):
+        if "bufferView" in image:
+            ref.index(image["bufferView"], "bufferViews", f"images[{i}].bufferView")
+        elif not isinstance(image.get("uri"), str):
+            raise _refuse(path, f"images[{i}]", "has neither a 'uri' nor a 'bufferView'")
+    for t, texture in enumerate(_items(doc, "textures")):
+        for key, array in (("source", "images"), ("sampler", "samplers")):
+            if key in texture:
+                ref.index(texture[key], array, f"textures[{t}].{key}")
+        for name, extension in _dict(texture.get("extensions", {}), path, f"textures[{t}]"):
+            if isinstance(extension, dict) and "source" in extension:
+                ref.index(extension["source"], "images", f"textures[{t}].extensions.{name}")
+    for s, sampler in enumerate(_items(doc, "samplers")):
+        for key, allowed in (("magFilter", _FILTERS), ("minFilter", _FILTERS)):
+            ref.enum(sampler, key, allowed, f"samplers[{s}]")
+        for key in ("wrapS", "wrapT"):
+            ref.enum(sampler, key, _WRAPS, f"samplers[{s}]")
+    for m, material in enumerate(_items(doc, "materials")):
+        _check_material(material, path, f"materials[{m}]", ref)
+
+
+class _Refs:
+    """Checks of single values, each refusing with the value's place in the document."""
+
+    def __init__(self, doc: dict, path: Path):
+        self.doc, self.path = doc, path
+
+    def index(self, value: Any, array: str, where: str) -> int:
+        count = len(_items(self.doc, array))
+        if not _is_int(value) or not 0 <= value < count:
+            raise _refuse(self.path, where, f"is {value!r}, not an index into '{array}' ({count})")
+        return value
+
+    def whole(self, value: Any, where: str, low: int = 0) -> int:
+        if not _is_int(value) or value < low:
+            raise _refuse(self.path, where, f"is {value!r}, not a whole number >= {low}")
+        return value
+
+    def numbers(self, value: Any, count: int, where: str, low=-math.inf, high=math.inf) -> None:
+        ok = isinstance(value, list) and len(value) == count
+        if not ok or not all(_is_number(x) and low <= x <= high for x in value):
+            bounds = "" if low == -math.inf else f" between {low:g} and {high:g}"
+            what = "a number" if count == 1 else f"{count} numbers"
+            raise _refuse(self.path, where, f"is {value!r}, not {what}{bounds}")
+
+    def enum(self, tree: dict, key: str, allowed: set, where: str) -> None:
+        if key in tree and tree[key] not in allowed:
+            raise _refuse(self.path, f"{where}.{key}", f"is {tree[key]!r}, not a valid value")
+
+
+def _list(value: Any, path: Path, where: str) -> list:
+    if not isinstance(value, list):
+        raise _refuse(path, where, "is not a list")
+    return value
+
+
+def _dict(value: Any, path: Path, where: str) -> list[tuple[str, Any]]:
+    if not isinstance(value, dict):
+        raise _refuse(path, f"{where}.extensions", "is not an object")
+    return list(value.items())
+
+
+def _check_nodes(doc: dict, path: Path, ref: _Refs) -> None:
+    """Indices, transforms, one parent per node, no cycle, depth <= MAX_NODE_DEPTH."""
+    nodes = _items(doc, "nodes")
+    parent: dict[int, int] = {}
+    for n, node in enumerate(nodes):
+        where = f"nodes[{n}]"
+        if "mesh" in node:
+            ref.index(node["mesh"], "meshes", f"{where}.mesh")
+        for child in _list(node.get("children", []), path, f"{where}.children"):
+            ref.index(child, "nodes", f"{where}.children")
+            if child == n:
+                raise _refuse(path, f"{where}.children", "lists the node itself (a cycle)")
+            if child in parent:
+                raise _refuse(path, f"{where}.children", f"gives node {child} a second parent")
+            parent[child] = n
+        for key, count in (("matrix", 16), ("translation", 3), ("rotation", 4), ("scale", 3)):
+            if key in node:
+                ref.numbers(node[key], count, f"{where}.{key}")
+    for start in range(len(nodes)):
+        depth, node = 1, start
+        while node in parent:
+            node, depth = parent[node], depth + 1
+            if node == start:
+                raise _refuse(path, f"nodes[{start}]", "is its own ancestor (a cycle)")
+            if depth > MAX_NODE_DEPTH:
+                raise _refuse(path, f"nodes[{start}]", f"is deeper than {MAX_NODE_DEPTH} levels")
+
+
+def _check_accessor_fields(accessor: dict, path: Path, where: str, ref: _Refs) -> None:
+    if accessor.get("componentType") not in COMPONENT_SIZES:
+        raise _refuse(path, f"{where}.componentType", f"is {accessor.get('componentType')!r}")
+    if accessor.get("type") not in TYPE_SIZES:
+        raise _refuse(path, f"{where}.type", f"is {accessor.get('type')!r}")
+    ref.whole(accessor.get("count"), f"{where}.count", low=1)
+    ref.whole(accessor.get("byteOffset", 0), f"{where}.byteOffset")
+    if "bufferView" in accessor:
+        ref.index(accessor["bufferView"], "bufferViews", f"{where}.bufferView")
+    size = TYPE_SIZES[accessor["type"]]
+    for key in ("min", "max"):
+        if key in accessor:
+            ref.numbers(accessor[key], size, f"{where}.{key}")
+
+
+def _check_material(material: dict, path: Path, where: str, ref: _Refs) -> None:
+    pbr = material.get("pbrMetallicRoughness", {})
+    if not isinstance(pbr, dict):
+        raise _refuse(path, f"{where}.pbrMetallicRoughness", "is not an object")
+    if "baseColorFactor" in pbr:
+        ref.numbers(pbr["baseColorFactor"], 4, f"{where}.baseColorFactor", 0, 1)
+    for key in ("metallicFactor", "roughnessFactor"):
+        if key in pbr:
+            ref.numbers([pbr[key]], 1, f"{where}.{key}", 0, 1)
+    if "emissiveFactor" in material:
+        ref.numbers(material["emissiveFactor"], 3, f"{where}.emissiveFactor", 0, 1)
+    if "alphaCutoff" in material:
+        ref.numbers([material["alphaCutoff"]], 1, f"{where}.alphaCutoff", 0)
+    ref.enum(material, "alphaMode", _ALPHA_MODES, where)
+    ref.enum(material, "doubleSided", {True, False}, where)
+    for keys in _TEXTURE_INFOS:
+        info = pbr.get(keys[1]) if len(keys) == 2 else material.get(keys[0])
+        if info is None:
+            continue
+        here = f"{where}.{keys[-1]}"
+        if not isinstance(info, dict):
+            raise _refuse(path, here, "is not a texture object")
+        ref.index(info.get("index"), "textures", f"{here}.index")
+        ref.whole(info.get("texCoord", 0), f"{here}.texCoord")
+        for key in ("scale", "strength"):
+            if key in info:
+                high = 1 if key == "strength" else math.inf
+                ref.numbers([info[key]], 1, f"{here}.{key}", 0 if high == 1 else -math.inf, high)
+
+
+# ----------------------------------------------------------------------------- data
+
+
+def buffer_data(doc: dict, path: Path, root: Path, chunk: bytes | None) -> list[bytes | None]:
+    """The bytes of every buffer: the GLB's BIN chunk, a data URI or a file inside ``root``;
+    None for an external file that is missing (reported by the caller)."""
+    data: list[bytes | None] = []
+    for b, buffer in enumerate(_items(doc, "buffers")):
+        uri = buffer.get("uri")
+        if uri is None:
+            if chunk is None:
+                raise _refuse(path, f"buffers[{b}]", "has no 'uri' and there is no GLB BIN chunk")
+            data.append(chunk)
+        elif not isinstance(uri, str):
+            raise _refuse(path, f"buffers[{b}].uri", f"is {uri!r}, not a string")
+        elif uri.startswith("data:"):
+            data.append(_data_uri(uri, path, f"buffers[{b}].uri"))
+        else:
+            from urllib.parse import unquote
+
+            file = resolve_reference(unquote(uri), path.parent, root, path, f"buffer #{b}")
+            data.append(file.read_bytes())
+    return data
+
+
+def _data_uri(uri: str, path: Path, where: str) -> bytes:
+    header, _, payload = uri.partition(",")
+    if not header.endswith(";base64"):
+        raise _refuse(path, where, "is a data URI that is not base64")
+    try:
+        return base64.b64decode(payload, validate=True)
+    except (binascii.Error, ValueError) as exc:
+        raise _refuse(path, where, f"is a data URI that does not decode ({exc})") from None
+
+
+def check_data(doc: dict, path: Path, buffers: list[bytes]) -> None:
+    """Buffers, views and the accessors primitives read hold what they claim (module doc)."""
+    for b, (buffer, data) in enumerate(zip(_items(doc, "buffers"), buffers, strict=True)):
+        if len(data) < buffer["byteLength"]:
+            raise _refuse(
+                path, f"buffers[{b}]", f"holds {len(data)} bytes, not {buffer['byteLength']}"
+            )
+    views = _items(doc, "bufferViews")
+    for v, view in enumerate(views):
+        end = view.get("byteOffset", 0) + view["byteLength"]
+        if end > doc["buffers"][view["buffer"]]["byteLength"]:
+            raise _refuse(path, f"bufferViews[{v}]", f"ends at byte {end}, past its buffer")
+    for m, mesh in enumerate(_items(doc, "meshes")):
+        for p, primitive in enumerate(mesh["primitives"]):
+            _check_primitive(doc, path, buffers, primitive, f"meshes[{m}].primitives[{p}]")
+
+
+def _element_size(accessor: dict) -> int:
+    return COMPONENT_SIZES[accessor["componentType"]] * TYPE_SIZES[accessor["type"]]
+
+
+def _accessor_bytes(doc: dict, path: Path, a: int, where: str) -> tuple[int, int]:
+    """``(byte offset in its buffer, stride)`` of accessor ``a``, checked to fit its view."""
+    accessor = doc["accessors"][a]
+    here = f"{where} (accessors[{a}])"
+    if "sparse" in accessor:
+        raise _refuse(path, here, "is sparse, which GeoScaler does not read")
+    if "bufferView" not in accessor:
+        raise _refuse(
+            path, here, "has no data (no bufferView; Draco or meshopt compression is not read)"
+        )
+    view = doc["bufferViews"][accessor["bufferView"]]
+    element = _element_size(accessor)
+    stride = view.get("byteStride", element)
+    if stride < element or stride > 252 or stride % 4 and stride != element:
+        raise _refuse(path, here, f"has a byteStride of {stride} for {element}-byte elements")
+    end = accessor.get("byteOffset", 0) + stride * (accessor["count"] - 1) + element
+    if end > view["byteLength"]:
+        raise _refuse(path, here, f"reads {end} bytes of a {view['byteLength']}-byte view")
+    return view.get("byteOffset", 0) + accessor.get("byteOffset", 0), stride
+
+
+def _check_primitive(
+    doc: dict, path: Path, buffers: list[bytes], primitive: dict, where: str
+) -> None:
+    attributes, accessors = primitive["attributes"], doc["accessors"]
+    if "POSITION" not in attributes:
+        raise _refuse(path, where, "has no POSITION attribute")
+    reads = {f"attributes.{k}": v for k, v in attributes.items() if k in ("POSITION", "NORMAL")}
+    reads.update({f"attributes.{k}": v for k, v in attributes.items() if k.startswith("TEXCOORD")})
+    for name, a in reads.items():
+        _accessor_bytes(doc, path, a, f"{where}.{name}")
+    position = accessors[attributes["POSITION"]]
+    if (position["type"], position["componentType"]) != ("VEC3", 5126):
+        raise _refuse(path, f"{where}.attributes.POSITION", "is not VEC3 of FLOAT")
+    uv = accessors[attributes["TEXCOORD_0"]] if "TEXCOORD_0" in attributes else None
+    if uv is not None and (uv["type"] != "VEC2" or uv["componentType"] not in _UV_TYPES):
+        raise _refuse(path, f"{where}.attributes.TEXCOORD_0", "is not VEC2 of FLOAT or unsigned")
+    counts = {accessors[a]["count"] for a in reads.values()}
+    if len(counts) > 1:
+        raise _refuse(path, f"{where}.attributes", f"have different counts {sorted(counts)}")
+    triangles = primitive.get("mode", 4) == 4
+    if "indices" not in primitive:
+        if triangles and position["count"] % 3:
+            raise _refuse(path, where, f"has {position['count']} vertices, not triangles")
+        return
+    a = primitive["indices"]
+    indices = accessors[a]
+    here = f"{where}.indices"
+    if indices["type"] != "SCALAR" or indices["componentType"] not in _INDEX_TYPES:
+        raise _refuse(path, here, "is not SCALAR of unsigned integers")
+    if triangles and indices["count"] % 3:
+        raise _refuse(path, here, f"has {indices['count']} entries, not a multiple of 3")
+    offset, stride = _accessor_bytes(doc, path, a, here)
+    dtype = np.dtype(_INDEX_TYPES[indices["componentType"]]).newbyteorder("<")
+    data = buffers[doc["bufferViews"][indices["bufferView"]]["buffer"]]
+    values = np.ndarray((indices["count"],), dtype, data, offset, (stride,))
+    largest = int(values.max())
+    if largest >= position["count"]:
+        raise _refuse(path, here, f"has index {largest}, past its {position['count']} vertices")
