@@ -80,7 +80,7 @@ def _print_info(info: dict) -> None:
 def cmd_info(args: argparse.Namespace) -> None:
     info = mesh_info(Path(args.mesh))
     if args.json:
-        print(json.dumps({"protocol": PROTOCOL, **info}, indent=2))
+        print(json.dumps({"protocol": PROTOCOL, **info}, indent=2, allow_nan=False))
     else:
         _print_info(info)
 
@@ -99,6 +99,7 @@ def cmd_render(args: argparse.Namespace) -> None:
     if out.suffix.lower() != ".png":
         raise GeoscalerError(f"{out}: renders are written as PNG; use a .png name")
     mesh = load_mesh(mesh_path)
+    check_output(out, force=args.force, inputs=mesh.source_files)  # its textures, .bin, .mtl
     camera = validation_cameras(distance)[view]
     renderer = Renderer(mesh, args.device, args.evaluation)
     render = renderer.render(renderer.rasterize(camera), renderer.reference_textures())
@@ -162,11 +163,16 @@ def downsample_and_report(
         with stop_on_interrupt(controller, bar.write):
             done, written = run_job(job, renderer, bar, controller)
             bar.close()
-            document = report_document(job, done, time.perf_counter() - start)
-            if job.report is not None:
-                text = dumps(document) + "\n"
-                write_atomically(job.report, lambda tmp: tmp.write_text(text))
-                written.append(job.report)
+            try:
+                document = report_document(job, done, time.perf_counter() - start)
+                if job.report is not None:
+                    text = dumps(document) + "\n"
+                    write_atomically(job.report, lambda tmp: tmp.write_text(text))
+                    written.append(job.report)
+            except BaseException:  # a failed run leaves no output behind
+                for path in written:
+                    Path(path).unlink(missing_ok=True)
+                raise
     finally:
         bar.close()
     say(format_report(document))
@@ -286,9 +292,12 @@ def cmd_compare(args: argparse.Namespace) -> None:
     mesh_path = Path(args.mesh)
     json_name = f"{mesh_path.stem}_compare.json"
     pictures = {scale: f"{mesh_path.stem}_compare_x{scale}.png" for scale in scales}
+    names = [json_name, *pictures.values()]
     if args.out:
-        prepare_out_dir(args.out, [json_name, *pictures.values()], args.force, [mesh_path])
+        prepare_out_dir(args.out, names, args.force, [mesh_path])
     mesh = load_mesh(mesh_path)
+    if args.out:  # again, now that every file the mesh was read from is known
+        prepare_out_dir(args.out, names, args.force, mesh.source_files)
     renderer = Renderer(mesh, options.device, args.evaluation)
     with tqdm(desc=mesh_path.name, unit="step", leave=False) as bar:
         comparison = compare_mesh(

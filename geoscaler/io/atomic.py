@@ -24,17 +24,31 @@ def write_atomically(path: str | Path, write: Callable[[Path], None]) -> Path:
     Readers see either the old file or the complete new one, never a partial write.
     """
     path = Path(path)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    # A short name of its own: the output's name may be as long as the file system allows.
+    try:
+        fd, tmp_name = tempfile.mkstemp(prefix=".geoscaler-", suffix=".tmp", dir=path.parent)
+    except OSError as exc:
+        raise _write_error(path, exc) from exc
     os.close(fd)
     tmp = Path(tmp_name)
     try:
         write(tmp)
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
         os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise _write_error(path, exc) from exc
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
     return path
+
+
+def _write_error(path: Path, exc: OSError) -> GeoscalerError:
+    return GeoscalerError(
+        f"{path}: writing it failed ({exc.strerror or exc}); check free space and "
+        "permissions, or choose another output folder."
+    )
 
 
 def _umask() -> int:

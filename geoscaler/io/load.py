@@ -10,7 +10,7 @@ from geoscaler.mesh import TexturedMesh
 from .assemble import assemble
 from .gltf import load_gltf
 from .obj import load_obj
-from .paths import FORMAT_NAMES, check_suffix
+from .paths import FORMAT_NAMES, check_suffix, printable_path
 
 
 def load_mesh(path: str | Path) -> TexturedMesh:
@@ -30,7 +30,14 @@ def load_mesh(path: str | Path) -> TexturedMesh:
     """
     path = Path(path)
     suffix = check_suffix(path)
-    if not path.is_file():
+    try:
+        found = path.is_file()
+    except OSError as exc:  # a folder on the way that cannot be searched, a name too long
+        raise GeoscalerError(
+            f"{printable_path(path)}: cannot be read ({exc.strerror}). Check the path and the "
+            "permissions of its folders."
+        ) from exc
+    if not found:
         raise GeoscalerError(f"{path}: no such file. Check the path and the file name.")
     loader = load_obj if suffix == ".obj" else load_gltf
     try:
@@ -40,6 +47,11 @@ def load_mesh(path: str | Path) -> TexturedMesh:
             raise
         raise GeoscalerError(f"{path}: {exc}") from exc  # a problem in its MTL
     except Exception as exc:
+        if isinstance(exc, OSError) and exc.filename is not None:  # a file, not its content
+            raise GeoscalerError(
+                f"{path}: {printable_path(exc.filename)} cannot be read ({exc.strerror}). "
+                "Check that the file and its folder are readable."
+            ) from exc
         raise GeoscalerError(
             f"{path}: could not be read as {FORMAT_NAMES[suffix]} "
             f"({type(exc).__name__}: {exc}). The file may be corrupt or truncated: "

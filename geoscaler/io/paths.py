@@ -12,6 +12,7 @@ not writable, one message per mistake. :func:`prepare_folder` creates an output 
 from __future__ import annotations
 
 import os
+import tempfile
 import urllib.parse
 from collections.abc import Iterable
 from pathlib import Path
@@ -138,7 +139,18 @@ def check_outputs(
         ``paths``, in order.
     """
     targets = [Path(p) for p in paths]
-    sources = [Path(p).resolve() for p in inputs]
+    for target in targets:
+        _check_name(target)
+    try:
+        return _check_outputs(targets, force, [Path(p).resolve() for p in inputs])
+    except OSError as error:  # a folder on the way cannot be searched, a name is too long...
+        name = printable_path(error.filename) if error.filename else "an output"
+        raise GeoscalerError(
+            f"{name}: cannot be checked for writing ({error.strerror}); choose another output"
+        ) from error
+
+
+def _check_outputs(targets: list[Path], force: bool, sources: list[Path]) -> list[Path]:
     for target in targets:
         same = target.resolve() in sources or (
             target.exists() and any(s.exists() and os.path.samefile(s, target) for s in sources)
@@ -150,6 +162,11 @@ def check_outputs(
             )
         if target.is_dir():
             raise GeoscalerError(f"{target}: is a folder; give an output file name")
+        if target.exists() and not target.is_file():
+            raise GeoscalerError(
+                f"{target}: is not a regular file (a device, pipe or socket); give an output "
+                "file name"
+            )
     existing = [str(t) for t in targets if t.exists() or t.is_symlink()]
     if existing and not force:
         one = len(existing) == 1
@@ -162,11 +179,60 @@ def check_outputs(
     for folder, target in last_in_folder.items():
         if not folder.is_dir():
             raise GeoscalerError(f"{target}: folder {folder} does not exist; create it first")
-        if not os.access(folder, os.W_OK):
+        if folder.parts[1:2] in (("proc",), ("sys",)) or (
+            folder.parts[1:2] == ("dev",) and folder.parts[2:3] != ("shm",)
+        ):
+            raise GeoscalerError(
+                f"{target}: folder {folder} is a system folder (/proc, /sys, /dev), not for "
+                "files; choose another output folder"
+            )
+        if not os.access(folder, os.W_OK) or not _can_create(folder):
             raise GeoscalerError(
                 f"{target}: folder {folder} is not writable; choose another output folder"
             )
     return targets
+
+
+def _check_name(target: Path) -> None:
+    """Refuse a file name or path longer than the file system takes (ENAMETOOLONG later)."""
+    folder = target.parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        name_max = os.pathconf(folder, "PC_NAME_MAX")
+        path_max = os.pathconf(folder, "PC_PATH_MAX")
+    except OSError:
+        name_max, path_max = 255, 4096
+    longest = max((len(os.fsencode(part)) for part in target.parts), default=0)
+    whole = len(os.fsencode(target.absolute()))
+    if longest > name_max or whole >= path_max:
+        limit = (
+            f"{longest} bytes in one name, at most {name_max}"
+            if longest > name_max
+            else f"{whole} bytes in all, at most {path_max - 1}"
+        )
+        raise GeoscalerError(
+            f"{printable_path(target)}: the name is too long for the file system ({limit}); "
+            "choose a shorter output name"
+        )
+
+
+def _can_create(folder: Path) -> bool:
+    """Whether a file can really be made in ``folder`` (as root, ``os.access`` says yes even
+    where the file system refuses); the probe is removed at once."""
+    try:
+        fd, name = tempfile.mkstemp(prefix=".geoscaler-probe-", dir=folder)
+    except OSError:
+        return False
+    os.close(fd)
+    os.unlink(name)
+    return True
+
+
+def printable_path(path: str | Path | bytes) -> str:
+    """A path for a message, shortened to its first and last 60 characters when longer."""
+    text = os.fsdecode(path) if isinstance(path, bytes) else str(path)
+    return text if len(text) <= 130 else f"{text[:60]}...{text[-60:]}"
 
 
 def check_output(path: str | Path, *, force: bool, inputs: Iterable[str | Path] = ()) -> Path:
