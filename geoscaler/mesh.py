@@ -482,9 +482,9 @@ def _spans(corners: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     straddle ``y`` cross it (left > right where none does)."""
     a, b = corners, np.roll(corners, -1, axis=1)
     dy = b[..., 1] - a[..., 1]
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):  # dy = 0: masked out below
         t = (y[:, None] - a[..., 1]) / dy
-    x = a[..., 0] + t * (b[..., 0] - a[..., 0])
+        x = a[..., 0] + t * (b[..., 0] - a[..., 0])
     crossing = (dy != 0) & (t >= 0) & (t <= 1)
     left = np.where(crossing, x, np.inf).min(axis=1)
     right = np.where(crossing, x, -np.inf).max(axis=1)

@@ -57,7 +57,8 @@ def place(
 ) -> Part:
     """Apply a 4x4 transform to a trimesh geometry and read its UVs and file normals."""
     linear = transform[:3, :3]
-    positions = np.asarray(geometry.vertices, dtype=np.float64) @ linear.T + transform[:3, 3]
+    with np.errstate(invalid="ignore", over="ignore"):  # NaN and inf are refused later
+        positions = np.asarray(geometry.vertices, dtype=np.float64) @ linear.T + transform[:3, 3]
     faces = np.asarray(geometry.faces, dtype=np.int64)
     if np.linalg.det(linear) < 0:
         faces = faces[:, ::-1]

@@ -195,8 +195,8 @@ def _check_outputs(targets: list[Path], force: bool, sources: list[Path]) -> lis
 
 def _check_name(target: Path) -> None:
     """Refuse a file name or path longer than the file system takes (ENAMETOOLONG later)."""
-    folder = target.parent
-    while not folder.exists() and folder != folder.parent:
+    folder = target.absolute().parent
+    while folder != folder.parent and not _exists(folder):
         folder = folder.parent
     try:
         name_max = os.pathconf(folder, "PC_NAME_MAX")
@@ -215,6 +215,13 @@ def _check_name(target: Path) -> None:
             f"{printable_path(target)}: the name is too long for the file system ({limit}); "
             "choose a shorter output name"
         )
+
+
+def _exists(path: Path) -> bool:
+    try:
+        return path.exists()
+    except OSError:  # too long, or a folder on the way cannot be searched
+        return False
 
 
 def _can_create(folder: Path) -> bool:
