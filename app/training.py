@@ -3,9 +3,9 @@
 The worker runs :func:`geoscaler.job.downsample` -- the CLI's job -- with a
 :class:`~geoscaler.optimize.Controller` for pause/resume/stop and a
 :class:`~geoscaler.job.JobObserver` that records the caching, bicubic's score on Q (the gain's
-zero, scored before the method starts), the loss and validation PSNR and, a few times a second,
-pulls the current texture (and UVs) with ``ProgressEvent.candidate``. The UI thread only reads
-:class:`TrainingState` under its lock.
+zero, scored once the validation views are in), the loss and validation PSNR and, a few times a
+second, pulls the current texture (and UVs) with ``ProgressEvent.candidate``. The UI thread
+only reads :class:`TrainingState` under its lock.
 
 On 2 cores the worker runs torch on one thread (``torch.set_num_threads(1)``, process-wide), so
 the UI thread and the GL driver keep the other core. On Linux the worker also runs at the lowest
@@ -249,6 +249,9 @@ class Training:
     def _on_event(self, event: ProgressEvent) -> None:
         if event.phase == "caching":
             self._set(caching=(event.done, event.total))
+            return
+        if event.phase == "baselines" and GAIN_REFERENCE in event.baselines:
+            self._set(bicubic_psnr=event.baselines[GAIN_REFERENCE]["Q"])
             return
         with self.lock:
             state = self.state

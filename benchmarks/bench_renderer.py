@@ -29,8 +29,8 @@ import torch
 from geoscaler.cameras import validation_cameras
 from geoscaler.filters import lanczos, reference_textures
 from geoscaler.io import load_mesh
+from geoscaler.losses import view_loss
 from geoscaler.mesh import TexturedMesh
-from geoscaler.optimize import view_loss
 from geoscaler.procedural import demo_mesh
 from geoscaler.render import Renderer, resolve_device
 from geoscaler.texture import MipTexture, texture_to_linear

@@ -26,7 +26,7 @@ import numpy as np
 from geoscaler.arguments import check_distances, check_method, check_scales, comparison_settings
 from geoscaler.errors import GeoscalerError
 from geoscaler.io import SUPPORTED_SUFFIXES, load_mesh
-from geoscaler.job import ROW_KEYS, JobObserver, compare_mesh, prepare_out_dir
+from geoscaler.job import JobObserver, compare_mesh, prepare_out_dir
 from geoscaler.methods import MethodOptions
 from geoscaler.metrics import METRIC_NAMES
 from geoscaler.protocol import (
@@ -38,6 +38,7 @@ from geoscaler.protocol import (
 )
 from geoscaler.render import Renderer
 from geoscaler.report import describe_device, dumps, json_safe
+from geoscaler.rows import ROW_KEYS
 
 METRIC_TITLES = {
     "psnr_fg": "PSNR-fg (dB)",

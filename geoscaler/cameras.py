@@ -109,6 +109,24 @@ def sample_training_cameras(
     return [Camera(tuple(d), float(r)) for d, r in zip(directions, lengths, strict=True)]
 
 
+def spread_order(count: int) -> list[int]:
+    """A permutation of ``range(count)`` whose every prefix spreads over a Fibonacci sphere of
+    ``count`` views: ``i * step mod count`` with ``step`` the integer coprime to ``count``
+    nearest ``0.382 count`` (consecutive picks land far apart in height and azimuth)."""
+    target = (3 - math.sqrt(5)) / 2 * count
+    steps = sorted(range(1, max(count, 2)), key=lambda k: abs(k - target))
+    step = next((k for k in steps if math.gcd(k, count) == 1), 1)
+    return [i * step % count for i in range(count)]
+
+
+def sample_extent(depth: float, samples_per_side: int) -> float:
+    """The largest scene size of one screen sample on a surface facing the camera at ``depth``
+    (along the view axis), anywhere in the frame: at the frame's corners a sample spans
+    ``1 + 2 tan^2(fov / 2)`` times its size at the centre."""
+    half = math.tan(math.radians(FOV_Y_DEGREES) / 2)
+    return depth * 2 * half / samples_per_side * (1 + 2 * half * half)
+
+
 def view_set_cameras(distance: float, evaluation: Evaluation) -> list[Camera]:
     """The cameras of the protocol's view set at ``distance`` that ``evaluation`` scores on:
     all 60 (protocol 1) or the views it lists."""

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from geoscaler.arguments import check_distances, check_method, check_scale, check_scales
-from geoscaler.cameras import view_set_cameras
+from geoscaler.cameras import spread_order, view_set_cameras
 from geoscaler.errors import GeoscalerError
 from geoscaler.filters import lanczos, output_sizes, reference_texture
 from geoscaler.io import (
@@ -38,10 +38,11 @@ from geoscaler.io import (
 )
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods import MethodOptions, MethodResult, RunContext, is_learned, run_method
-from geoscaler.metrics import METRIC_NAMES, mean_metrics
 from geoscaler.optimize import Controller, ProgressEvent
-from geoscaler.protocol import BYTES_PER_TEXEL, GAIN_REFERENCE, VALIDATION_DISTANCE
+from geoscaler.protocol import GAIN_REFERENCE, VALIDATION_DISTANCE
 from geoscaler.render import Renderer
+from geoscaler.rows import protocol_row, validation_row
+from geoscaler.validation import Validation, validation_view_sets
 from geoscaler.views import ViewCache, ViewSet
 
 OUTPUT_SUFFIXES = (".glb", ".gltf", ".obj")
@@ -51,24 +52,6 @@ EXPORT_RESERVE = 2.0
 REPORT_BASELINES = ("bicubic", "lanczos")
 """Methods a downsampling job always scores beside its result (bicubic is the gain's zero)."""
 
-ROW_KEYS = (
-    "method",
-    "scale",
-    "distance",
-    "views",
-    "texture_size",
-    "texture_bytes",
-    *METRIC_NAMES,
-    "gain_db",
-    "seconds",
-    "shipped",
-)
-"""Keys of a result row: ``texture_size`` is ``[width, height]`` of the largest texture,
-``texture_bytes`` the RGBA8 memory of all textures (``BYTES_PER_TEXEL``), PSNRs and gain in
-dB (``+inf`` for a render identical to the reference), ``seconds`` the method's wall time,
-``shipped`` the method whose textures the row scores: the row's own, or for a learned method
-the filter that beat it on Q (:func:`no_worse_than_filters`)."""
-
 
 class JobObserver:
     """Watches a job; each hook does nothing unless a subclass says otherwise."""
@@ -77,7 +60,8 @@ class JobObserver:
         """Coarse progress: ``what`` is running, ``done`` of ``total`` units of it are done."""
 
     def views_cached(self, distance: float, views: ViewSet) -> None:
-        """The view set at ``distance`` is cached (Q before any method runs)."""
+        """The view set at ``distance``: Q as the job starts (its views are cached while the
+        methods run), the protocol's other sets once cached."""
 
     def method_started(self, name: str, scale: int, time_budget: float | None) -> None:
         """Method ``name`` starts at ``scale``; a learned one has ``time_budget`` seconds."""
@@ -99,7 +83,6 @@ class Comparison:
         foreground: distance -> ``(N,)`` int64 foreground pixels of each view's reference.
         view_indices: the protocol view indices scored (0..59), the same at every distance.
         device: the torch device the views were rendered on.
-        q_seconds: seconds spent caching Q (and its taps) for the learned methods.
     """
 
     rows: list[dict[str, Any]]
@@ -107,17 +90,6 @@ class Comparison:
     foreground: dict[float, np.ndarray] = field(default_factory=dict)
     view_indices: list[int] = field(default_factory=list)
     device: str = "cpu"
-    q_seconds: float = 0.0
-
-
-def texture_facts(textures: Sequence[np.ndarray | None]) -> tuple[list[int], int]:
-    """``([width, height]`` of the largest texture, RGBA8 bytes of them all)``."""
-    present = [t for t in textures if t is not None]
-    if not present:
-        return [0, 0], 0
-    largest = max(present, key=lambda t: t.shape[0] * t.shape[1])
-    texels = sum(t.shape[0] * t.shape[1] for t in present)
-    return [int(largest.shape[1]), int(largest.shape[0])], int(texels * BYTES_PER_TEXEL)
 
 
 def checked_output_sizes(mesh: TexturedMesh, scale: int) -> list[tuple[int, int] | None]:
@@ -156,25 +128,6 @@ def remaining_budget(budget: float | None, spent: float) -> float | None:
     return None if budget is None else max(budget - spent, 1e-3)
 
 
-def _row(
-    result: MethodResult, name: str, scale: int, distance: float, cache: ViewCache
-) -> dict[str, Any]:
-    """A result row without its gain: the output scored on one cached view set."""
-    metrics = mean_metrics(cache.score(result.textures, result.uvs))
-    size, nbytes = texture_facts(result.textures)
-    return {
-        "method": name,
-        "scale": scale,
-        "distance": distance,
-        "views": len(cache),
-        "texture_size": size,
-        "texture_bytes": nbytes,
-        **{key: metrics[key] for key in METRIC_NAMES},
-        "seconds": result.seconds,
-        "shipped": result.details.get("shipped", name),
-    }
-
-
 def compare_mesh(
     mesh: TexturedMesh,
     scales: Sequence[int],
@@ -186,15 +139,22 @@ def compare_mesh(
     controller: Controller | None = None,
     started_at: float | None = None,
     reserve: float = 0.0,
+    rows_on: str = "protocol",
 ) -> Comparison:
-    """Run ``methods`` at every scale and score them on the protocol views at each distance.
+    """Run ``methods`` at every scale and score them.
+
+    The filters run first; they are the *baselines* of the learned methods, which validate on a
+    :class:`~geoscaler.validation.Validation` (Q and near/far guards, cached while they train)
+    and ship their result only where it clears the best baseline on every validation set
+    (:func:`no_worse_than_filters`).
 
     Args:
         mesh: the mesh; its textures are the originals.
         scales: whole reduction factors >= 2 (e.g. ``[4, 8]``).
         methods: registered method names, in the order rows are wanted; bicubic runs for the
             gains whether listed or not.
-        distances: camera distances of the view sets (2.4 is Q; 1.5 near, 4.0 far).
+        distances: camera distances of the protocol view sets scored (2.4 is Q; 1.5 near,
+            4.0 far); ``rows_on="validation"`` scores Q only.
         options: settings of every method; ``options.device`` also renders the views.
         renderer: the mesh's renderer; its ``evaluation`` says the image size and the views
             standing for each set (default: protocol 1 on ``options.device``).
@@ -202,11 +162,14 @@ def compare_mesh(
         controller: pauses or stops the learned methods (their best state so far is kept).
         started_at: the ``time.perf_counter()`` from which ``options.time_budget`` is the wall
             clock of the whole job (``downsample``: the command's start); a learned method then
-            gets what is left once everything before it is done, less 1.5 times the time of
-            scoring a filter on Q (its own scoring comes after it) and ``reserve``. None
-            (``compare``, ``bench``): each learned method's budget counts from the caching of
-            Q, per scale.
+            gets what is left, and keeps ``reserve`` seconds and the time of the rows' scoring
+            for after it. None (``compare``, ``bench``): each learned method's budget counts
+            from its own start.
         reserve: seconds the caller needs after this returns (``downsample``: the export).
+        rows_on: ``"protocol"``: rows on the protocol's view sets at ``distances`` (all their
+            views, after the methods); ``"validation"``: rows on the validation's Q views, the
+            ones the shipped result was chosen on (a downsampling job's report, inside its
+            budget).
 
     Returns:
         A :class:`Comparison`; its rows are ordered by distance, scale, then ``methods``.
@@ -216,86 +179,62 @@ def compare_mesh(
             texture, or a method's own error.
     """
     scales = check_scales(scales)
-    distances = check_distances(distances)
+    distances = [VALIDATION_DISTANCE] if rows_on == "validation" else check_distances(distances)
     listed = [check_method(name) for name in methods]
     options = options or MethodOptions()
     observer = observer or JobObserver()
     sizes = {scale: checked_output_sizes(mesh, scale) for scale in scales}
     to_run = listed if GAIN_REFERENCE in listed else [*listed, GAIN_REFERENCE]
-    to_run = sorted(to_run, key=is_learned)  # filters first: their scores come early
+    filters = [name for name in to_run if not is_learned(name)]
+    learned = [name for name in to_run if is_learned(name)]
     renderer = renderer or Renderer(mesh, options.device)
-    evaluation = renderer.evaluation
     comparison = Comparison([], {}, device=str(renderer.device))
-    comparison.view_indices = evaluation.view_indices
-    others = [distance for distance in distances if distance != VALIDATION_DISTANCE]
-    total = len(scales) * len(to_run) * (1 + len(distances)) + len(others)
-    done = 0
-
-    def step(what: str) -> None:
-        nonlocal done
-        observer.stage(what, done, total)
-        done += 1
-
+    view_sets = validation_view_sets(renderer)
+    observer.views_cached(VALIDATION_DISTANCE, view_sets["Q"])
+    q_order = spread_order(len(renderer.evaluation.view_indices))
+    comparison.view_indices = [renderer.evaluation.view_indices[i] for i in q_order]
+    steps = len(scales) * len(to_run) * (1 + len(distances))
+    progress = _Stages(observer, steps + len(distances))
     scores: dict[tuple[float, str, int], dict[str, Any]] = {}
-    q = None
-    if VALIDATION_DISTANCE in distances or any(is_learned(name) for name in to_run):
-        start = time.perf_counter()
-        cameras = view_set_cameras(VALIDATION_DISTANCE, evaluation)
-        q = ViewSet(renderer, cameras, lambda d, n: observer.stage("caching Q", d, n))
-        comparison.q_seconds = time.perf_counter() - start
-        comparison.foreground[VALIDATION_DISTANCE] = q.foreground.sum(dim=(1, 2)).cpu().numpy()
-        observer.views_cached(VALIDATION_DISTANCE, q)
     for scale in scales:
-        q_cache, q_seconds = None, comparison.q_seconds
-        if q is not None:
-            start = time.perf_counter()
-            q_cache = ViewCache(q, sizes[scale], with_taps=True)
-            q_seconds += time.perf_counter() - start
-        on_q: dict[str, tuple[MethodResult, dict[str, Any]]] = {}
-        score_seconds = 0.0
-        for name in to_run:
-            step(f"{name} x{scale}")
-            budget = None
-            if is_learned(name):
-                spent = q_seconds
-                if started_at is not None:
-                    after = 1.5 * score_seconds + reserve
-                    spent = time.perf_counter() - started_at + after
-                budget = remaining_budget(options.time_budget, spent)
-            result = _run(
-                mesh, scale, name, options, renderer, q_cache, budget, observer, controller
+        outputs: dict[str, MethodResult] = {}
+        for name in filters:
+            progress.step(f"{name} x{scale}")
+            outputs[name] = _run(mesh, scale, name, options, renderer, None, None, observer)
+        scorings_after = len(to_run) if rows_on == "validation" else 0
+        baselines = {name: outputs[name].textures for name in filters}
+        validation = Validation(view_sets, sizes[scale], baselines, scorings_after)
+        for name in learned:
+            progress.step(f"{name} x{scale}")
+            budget = options.time_budget
+            if started_at is not None:
+                budget = remaining_budget(budget, time.perf_counter() - started_at)
+            context = RunContext(
+                renderer, validation, controller, observer.on_event, budget, reserve
             )
-            if is_learned(name):
-                result.seconds += q_seconds  # the job's caching for it
-            if q_cache is not None:
-                step(f"scoring {name} x{scale} on Q")
-                start = time.perf_counter()
-                row = _row(result, name, scale, VALIDATION_DISTANCE, q_cache)
-                score_seconds = max(score_seconds, time.perf_counter() - start)
-                if is_learned(name):
-                    result, row = no_worse_than_filters(name, result, row, on_q)
-                else:
-                    on_q[name] = result, row
-                if VALIDATION_DISTANCE in distances:
-                    scores[VALIDATION_DISTANCE, name, scale] = row
-                    observer.scored(row)
-            comparison.outputs[name, scale] = result
-        del q_cache
-    del q
-    for distance in others:
-        step(f"rendering the views at {distance:g}")
-        views = ViewSet(renderer, view_set_cameras(distance, evaluation))
-        comparison.foreground[distance] = views.foreground.sum(dim=(1, 2)).cpu().numpy()
-        observer.views_cached(distance, views)
-        for scale in scales:
-            cache = ViewCache(views, sizes[scale], with_taps=True)
+            result = _run(mesh, scale, name, options, renderer, context, budget, observer)
+            outputs[name] = no_worse_than_filters(name, result, validation, outputs)
+        if rows_on == "validation":
+            _cache_for_rows(validation, options.time_budget, started_at, reserve)
             for name in to_run:
-                step(f"scoring {name} x{scale} at {distance:g}")
-                row = _row(comparison.outputs[name, scale], name, scale, distance, cache)
-                scores[distance, name, scale] = row
+                progress.step(f"scoring {name} x{scale}")
+                row = validation_row(outputs[name], name, scale, validation)
+                scores[VALIDATION_DISTANCE, name, scale] = row
                 observer.scored(row)
-            del cache
-        del views
+        comparison.outputs.update({(name, scale): outputs[name] for name in to_run})
+    if rows_on == "protocol":
+        _score_protocol_sets(
+            comparison,
+            mesh,
+            scales,
+            to_run,
+            distances,
+            view_sets["Q"],
+            progress,
+            observer,
+            scores,
+            sizes,
+        )
     for (distance, name, scale), row in scores.items():
         reference = scores[distance, GAIN_REFERENCE, scale]["psnr_fg"]
         row["gain_db"] = 0.0 if name == GAIN_REFERENCE else row["psnr_fg"] - reference
@@ -305,38 +244,113 @@ def compare_mesh(
         for scale in scales
         for name in listed
     ]
-    observer.stage("done", total, total)
+    q = view_sets["Q"]
+    if len(q):
+        counts = q.foreground[: len(q)].sum(dim=(1, 2)).cpu().numpy()
+        comparison.foreground.setdefault(VALIDATION_DISTANCE, counts)
+    progress.done()
     return comparison
+
+
+class _Stages:
+    """Counts the job's stages for :meth:`JobObserver.stage`."""
+
+    def __init__(self, observer: JobObserver, total: int):
+        self.observer, self.total, self.count = observer, total, 0
+
+    def step(self, what: str) -> None:
+        self.observer.stage(what, self.count, self.total)
+        self.count = min(self.count + 1, self.total)
+
+    def done(self) -> None:
+        self.observer.stage("done", self.total, self.total)
+
+
+def _cache_for_rows(
+    validation: Validation, budget: float | None, started_at: float | None, reserve: float
+) -> None:
+    """Before the rows of a job without a learned method: cache the validation views (all of
+    them, or under a budget those that leave time for the scoring and ``reserve``)."""
+    if validation.frozen:
+        return
+    if budget is None or started_at is None:
+        validation.cache_all()
+    else:
+        end = started_at + budget - reserve
+        while time.perf_counter() + 2 * validation.seconds_needed(0, caching=True) < end:
+            if not validation.cache_next():
+                break
+    validation.freeze()
+
+
+def _score_protocol_sets(
+    comparison: Comparison,
+    mesh: TexturedMesh,
+    scales: Sequence[int],
+    names: Sequence[str],
+    distances: Sequence[float],
+    q: ViewSet,
+    progress: _Stages,
+    observer: JobObserver,
+    scores: dict[tuple[float, str, int], dict[str, Any]],
+    sizes: dict[int, list[tuple[int, int] | None]],
+) -> None:
+    """Score every output on all views of the protocol's sets at ``distances`` (Q's views are
+    the validation's, completed here)."""
+    for distance in distances:
+        progress.step(f"rendering the views at {distance:g}")
+        if distance == VALIDATION_DISTANCE:
+            while q.cache_next():
+                observer.stage("caching Q", len(q), len(q.cameras))
+            views = q
+        else:  # the same directions, in the same order as Q's
+            cameras = view_set_cameras(distance, q.renderer.evaluation)
+            views = ViewSet(q.renderer, [cameras[i] for i in spread_order(len(cameras))])
+        comparison.foreground[distance] = views.foreground.sum(dim=(1, 2)).cpu().numpy()
+        if views is not q:  # Q was handed over as the job started
+            observer.views_cached(distance, views)
+        for scale in scales:
+            cache = ViewCache(views, sizes[scale], with_taps=True)
+            for name in names:
+                progress.step(f"scoring {name} x{scale} at {distance:g}")
+                row = protocol_row(comparison.outputs[name, scale], name, scale, distance, cache)
+                scores[distance, name, scale] = row
+                observer.scored(row)
 
 
 def no_worse_than_filters(
     name: str,
     result: MethodResult,
-    row: dict[str, Any],
-    filters: dict[str, tuple[MethodResult, dict[str, Any]]],
-) -> tuple[MethodResult, dict[str, Any]]:
-    """What a learned method ships: its result, or the best filter scored on Q beside it
-    where that filter scored higher there (a learned method starts from Lanczos; a pool cut
-    short or a bad run must not ship below the filters the job already has).
+    validation: Validation,
+    filters: dict[str, MethodResult],
+) -> MethodResult:
+    """What a learned method ships: of its result and the filters, the one
+    :meth:`Validation.rank` puts first: the learned result wherever it is no worse than the
+    best filter on every validation set (Q, near, far), else whichever falls least below that
+    floor on its worst set (a learned method starts from Lanczos; a pool cut short or a bad
+    run must not ship below the filters the job has).
 
     Args:
         name: the learned method.
-        result, row: its result and Q row.
-        filters: filter name -> its result and Q row, at the same scale.
+        result: its result; ``details["validation_scores"]`` from the loop (a method without
+            them ships as it is).
+        validation: the validation sets, frozen, with the filters as baselines.
+        filters: filter name -> its result, at the same scale.
 
     Returns:
-        The result and row to ship; ``row["shipped"]`` and ``details["shipped"]`` name what
-        ships, and ``details["optimised_psnr_fg"]`` is the method's own score on Q.
+        The result to ship; ``details["shipped"]`` names what ships, ``["shortfall_db"]`` is
+        how far the method's own result fell below the floor.
     """
-    result.details["optimised_psnr_fg"] = row["psnr_fg"]
-    best = max(filters, key=lambda f: filters[f][1]["psnr_fg"], default=None)
-    if best is None or filters[best][1]["psnr_fg"] <= row["psnr_fg"]:
+    scores = {name: result.details.get("validation_scores"), **validation.baseline_scores()}
+    if scores[name] is None:
         result.details["shipped"] = name
-        return result, row
-    shipped, shipped_row = filters[best]
-    details = {**result.details, "shipped": best}
-    result = MethodResult(list(shipped.textures), None, result.seconds, details)
-    return result, {**shipped_row, "method": name, "seconds": result.seconds, "shipped": best}
+        return result
+    best = max(scores, key=lambda candidate: validation.rank(scores[candidate]))
+    result.details["shipped"] = best
+    result.details["shortfall_db"] = validation.shortfall(scores[name])
+    if best == name:
+        return result
+    return MethodResult(list(filters[best].textures), None, result.seconds, result.details)
 
 
 def _run(
@@ -345,20 +359,14 @@ def _run(
     name: str,
     options: MethodOptions,
     renderer: Renderer,
-    q_cache: ViewCache | None,
+    context: RunContext | None,
     budget: float | None,
     observer: JobObserver,
-    controller: Controller | None,
 ) -> MethodResult:
-    """Run one method as the job does: a learned one on the job's renderer and cached Q, with
-    ``budget`` seconds; every output with its alpha re-attached as it will ship."""
-    if not is_learned(name):
-        observer.method_started(name, scale, None)
-        result = run_method(name, mesh, scale, options)
-    else:
-        context = RunContext(renderer, q_cache, controller, observer.on_event, budget)
-        observer.method_started(name, scale, budget)
-        result = run_method(name, mesh, scale, options, context)
+    """Run one method as the job does: a learned one with the job's ``context`` (renderer,
+    validation, ``budget`` seconds); every output with its alpha re-attached as it will ship."""
+    observer.method_started(name, scale, budget if is_learned(name) else None)
+    result = run_method(name, mesh, scale, options, context if is_learned(name) else None)
     result.textures = ship_textures(mesh, result.textures, scale)
     return result
 
@@ -515,13 +523,10 @@ def downsample(
         controller,
         started_at,
         reserve,
+        rows_on="validation",
     )
     result = comparison.outputs[method, scale]
-    details = {
-        **result.details,
-        "validation_views": len(comparison.view_indices),
-        "validation_cache_seconds": round(comparison.q_seconds, 3),
-    }
+    details = dict(result.details)
     if is_learned(method):
         details["time_budget"] = options.time_budget
         details["steps_limit"] = options.steps

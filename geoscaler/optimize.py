@@ -4,14 +4,20 @@ A *model* produces the candidate: linear-light textures (one per material, None 
 material is untextured) and optionally new UVs. The loop renders K random training views of
 the candidate through the protocol renderer, compares them with renders of the original
 (L2 plus a weighted 1 - SSIM on the sRGB images, foreground only), and steps AdamW with a
-warm-up and cosine decay. Every ``validate_every`` steps it scores the candidate on the
-validation set Q and keeps the best state. It stops at a step count, a wall-clock budget or a
+warm-up and cosine decay. It validates the candidate as it ships (gutters filled, 8-bit) on
+a :class:`~geoscaler.validation.Validation` (Q and near/far guards) and keeps the best state
+that clears the filters' floor on every set. It stops at a step count, a wall-clock budget or a
 plateau, and reports progress events that the CLI's progress bar and the desktop app consume.
 
-Training views are cached once (a :class:`~geoscaler.views.ViewCache`: G-buffers, references
-and, for models that keep the mesh's UVs, texture taps), so a step costs only texel gathers and
-their gradients. :func:`optimize` is three parts: :func:`cache_training_views`,
-:func:`train_step` and :func:`validate`.
+Views are cached while the loop trains: the first step waits for ``views_per_step`` training
+views only; the rest of the training pool and the validation views are cached between steps,
+:data:`CACHED_PER_STEP` after each step until they are all there. Under a budget the
+pool stops growing and the validation sets freeze once :data:`CACHING_SHARE` of it is spent,
+and the loop stops early enough for what must follow: the validations still owed and the
+caller's own scoring and export (``reserve``).
+
+Gutters are filled from the UV layout alone (:func:`geoscaler.uvmaps.reachable_texels`), so
+what ships never depends on which views the machine managed to cache.
 """
 
 from __future__ import annotations
@@ -26,17 +32,26 @@ from typing import Protocol
 import torch
 
 from geoscaler.cameras import Camera, sample_training_cameras
-from geoscaler.metrics import SSIMLoss, psnr_fg
+from geoscaler.losses import PerceptualTerm, view_loss
 from geoscaler.render import Renderer
-from geoscaler.texture import build_mip_chain, quantize_linear
+from geoscaler.texture import fill_gutters, quantize_linear
+from geoscaler.uvmaps import reachable_masks
+from geoscaler.validation import Validation
 from geoscaler.views import ViewCache, ViewSet
 
 TRAINING_RANGE = (1.5, 4.2)
 """The loop's default training distances: wider than the protocol's range S on both sides, so
 the texture holds up from the near robustness set (1.5, magnified texels) to the far one (4.0,
 where coarser mip levels of the candidate are shown). See the README's "training range" note."""
-# Under a time budget, the training pool stops growing once this share of it is spent.
 CACHING_SHARE = 0.4
+"""Under a time budget, views are cached within this share of it: then the training pool stops
+growing and the validation sets freeze at what is cached."""
+CACHED_PER_STEP = 2
+"""Views cached after each step while some are missing: a count, not a time share, so that a
+run without a budget is the same on every machine."""
+EARLY_POOL = 16
+"""Training views cached in turn with validation views (the rest of the pool comes after the
+validation's)."""
 
 
 class Model(Protocol):
@@ -91,14 +106,17 @@ class ProgressEvent:
     """A report from the loop.
 
     Attributes:
-        phase: ``"caching"``, ``"step"``, ``"validation"`` or ``"done"``.
+        phase: ``"caching"`` (before the first step), ``"step"``, ``"baselines"`` (the
+            filters scored on the frozen validation sets), ``"validation"`` or ``"done"``.
         step: steps completed.
         total_steps: the step limit.
         elapsed: seconds since the loop started.
         loss: the latest training loss (nan before the first step).
         validation_psnr: PSNR-fg on Q of this validation (``"validation"`` events).
-        best_psnr: best validation PSNR-fg so far.
-        done / total: progress within the caching phase.
+        best_psnr: Q's PSNR-fg of the best candidate so far.
+        done / total: views cached of all the loop will cache (training and validation).
+        scores: set name -> PSNR-fg of this validation (``"validation"`` events).
+        baselines: filter name -> its scores per set (``"baselines"`` events).
         candidate: returns the current ``(textures, uvs)``, detached, on request: linear
             textures and UVs (None when the model keeps the mesh's own).
     """
@@ -112,6 +130,8 @@ class ProgressEvent:
     best_psnr: float = -math.inf
     done: int = 0
     total: int = 0
+    scores: dict[str, float] = field(default_factory=dict)
+    baselines: dict[str, dict[str, float]] = field(default_factory=dict)
     candidate: Callable[[], tuple[list[torch.Tensor | None], torch.Tensor | None]] | None = field(
         default=None, repr=False
     )
@@ -148,116 +168,43 @@ class Controller:
 
 
 @dataclass
-class PerceptualTerm:
-    """``weight * loss(image, reference)`` on the object's crop of two ``(H, W, 3)`` images."""
-
-    loss: Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
-    weight: float
-
-
-def rendering_loss(
-    image: torch.Tensor,
-    reference: torch.Tensor,
-    foreground: torch.Tensor,
-    ssim_weight: float,
-    perceptual: PerceptualTerm | None = None,
-) -> torch.Tensor:
-    """The training loss of one view, on sRGB images:
-
-    ``mean_fg (image - reference)^2 + ssim_weight (1 - SSIM_fg) + perceptual`` (the last two
-    on the crop around the object).
-    """
-    mse = (image - reference).square().mean(-1)[foreground].mean()
-    if ssim_weight == 0 and perceptual is None:
-        return mse
-    rows = torch.nonzero(foreground.any(1)).squeeze(1)
-    cols = torch.nonzero(foreground.any(0)).squeeze(1)
-    pad = 8  # keep the SSIM window's context around the object
-    r0, r1 = max(int(rows[0]) - pad, 0), min(int(rows[-1]) + pad + 1, image.shape[0])
-    c0, c1 = max(int(cols[0]) - pad, 0), min(int(cols[-1]) + pad + 1, image.shape[1])
-    if r1 - r0 < 11 or c1 - c0 < 11:
-        return mse
-    crop = (slice(r0, r1), slice(c0, c1))
-    loss = mse
-    if ssim_weight != 0:
-        ssim = SSIMLoss()(image[crop][None], reference[crop][None], foreground[crop][None])
-        loss = loss + ssim_weight * ssim
-    if perceptual is not None:
-        loss = loss + perceptual.weight * perceptual.loss(image[crop], reference[crop])
-    return loss
-
-
-@dataclass
 class OptimizeResult:
     """The best validated candidate, finished as it ships (:func:`finish`), and how the run
-    went; ``best_psnr`` is that finished candidate's validation score."""
+    went.
+
+    Attributes:
+        textures, uvs: the candidate (linear textures, gutters filled; UVs or None).
+        steps: steps taken; ``best_step`` the step of the candidate (0: the start).
+        scores: the candidate's validation PSNR-fg per set; ``best_psnr`` is Q's.
+        clears_floor: the candidate is no worse than the best baseline on every set.
+        shortfall: dB (<= 0) it falls below the best baseline on its worst set.
+        baselines: baseline name -> its validation PSNR-fg per set.
+        stopped_by: ``"steps"``, ``"time budget"``, ``"plateau"`` or ``"stopped"``.
+        seconds: wall time from the start the budget counts from.
+        first_step_seconds: seconds from that start to the end of the first step (nan: none).
+        training_views: training views cached; ``validation_views`` set name -> views
+            validated on.
+        history: one dict per step (loss, elapsed, validation scores where validated).
+    """
 
     textures: list[torch.Tensor | None]
     uvs: torch.Tensor | None
     steps: int
     best_step: int
-    best_psnr: float
+    scores: dict[str, float]
+    clears_floor: bool
+    shortfall: float
+    baselines: dict[str, dict[str, float]]
     stopped_by: str
     seconds: float
+    first_step_seconds: float = math.nan
+    training_views: int = 0
+    validation_views: dict[str, int] = field(default_factory=dict)
     history: list[dict] = field(default_factory=list)
 
-
-def view_loss(
-    cache: ViewCache,
-    view: int,
-    textures: Sequence[torch.Tensor | None],
-    uvs: torch.Tensor | None,
-    ssim_weight: float,
-    perceptual: PerceptualTerm | None = None,
-) -> torch.Tensor:
-    """:func:`rendering_loss` of a candidate in the cached view ``view``."""
-    image = cache.render(view, textures, uvs)
-    views = cache.views
-    return rendering_loss(
-        image, views.references[view], views.foreground[view], ssim_weight, perceptual
-    )
-
-
-def cache_training_views(
-    renderer: Renderer,
-    sizes: Sequence[tuple[int, int] | None],
-    config: OptimizeConfig,
-    keeps_uvs: bool,
-    cameras: Sequence[Camera] | None = None,
-    start: float | None = None,
-    emit: Callable[[ProgressEvent], None] | None = None,
-) -> tuple[ViewCache, list[torch.Tensor | None]]:
-    """The training pool, and per material the ``(h, w)`` bool texels its views read.
-
-    Args:
-        renderer: the mesh's renderer.
-        sizes: per material the candidate's texture ``(h, w)`` (None: untextured).
-        config: the pool's size and distances, the seed, the time budget.
-        keeps_uvs: cache texture taps (and find the texels read) for the mesh's own UVs.
-        cameras: the views to cache (default: ``config.pool_views`` drawn from
-            ``config.distances``).
-        start: the ``time.perf_counter()`` the time budget counts from; under a budget the
-            pool stops growing once :data:`CACHING_SHARE` of it is spent (at least
-            ``config.views_per_step`` views are cached).
-        emit: receives ``"caching"`` events.
-    """
-    start = time.perf_counter() if start is None else start
-    cameras = cameras or sample_training_cameras(config.pool_views, config.seed, config.distances)
-
-    def report(done: int, total: int) -> None:
-        if emit:
-            elapsed = time.perf_counter() - start
-            emit(ProgressEvent("caching", 0, config.steps, elapsed, done=done, total=total))
-
-    deadline = None
-    if config.time_budget is not None:  # leave most of the budget to the optimisation itself
-        deadline = start + CACHING_SHARE * config.time_budget
-    pool = ViewSet(renderer, cameras, report, deadline, config.views_per_step)
-    train = ViewCache(pool, sizes, keeps_uvs)
-    # Texels no training view reads, filled from the charts in every validated candidate
-    # (found once: this depends only on the taps).
-    seen = [seen_texels(train, i) if keeps_uvs and s else None for i, s in enumerate(sizes)]
-    return train, seen
+    @property
+    def best_psnr(self) -> float:
+        return self.scores.get("Q", math.nan)
 
 
 def train_step(
@@ -293,54 +240,130 @@ UVs or None (the mesh's own)."""
 
 
 def finish(
-    textures: Sequence[torch.Tensor | None], seen: Sequence[torch.Tensor | None]
+    textures: Sequence[torch.Tensor | None], reachable: Sequence[torch.Tensor | None]
 ) -> list[torch.Tensor | None]:
-    """The candidate's textures as they will ship, before 8-bit encoding: detached, and
-    texels that no training view reads filled from their charts (:func:`fill_unseen`; ``seen``
-    per material, None: nothing to fill)."""
+    """The candidate's textures as they will ship, before 8-bit encoding: detached, and the
+    gutters (texels outside ``reachable``, per material; None: no gutter filling) filled from
+    their charts (:func:`geoscaler.texture.fill_gutters`)."""
     finished = []
-    for texture, mask in zip(textures, seen, strict=True):
+    for texture, mask in zip(textures, reachable, strict=True):
         if texture is not None:
             texture = texture.detach()
-            texture = texture.clone() if mask is None else fill_unseen(texture, mask)
+            texture = texture.clone() if mask is None else fill_gutters(texture, mask)
         finished.append(texture)
     return finished
 
 
-@torch.no_grad()
-def validate(
-    cache: ViewCache, model: Model, seen: Sequence[torch.Tensor | None] | None = None
-) -> tuple[float, Candidate]:
-    """Mean PSNR-fg over the cached validation views of the candidate as it will ship
-    (:func:`finish`, then 8-bit quantised), and that finished candidate: what is validated is
-    what ships."""
-    textures, uvs = model.candidate()
-    textures = finish(textures, seen or [None] * len(textures))
-    uvs = None if uvs is None else uvs.detach().clone()
-    shipped = [None if t is None else quantize_linear(t) for t in textures]
-    views = cache.views
-    values = [
-        psnr_fg(
-            cache.render(i, shipped, uvs)[None],
-            views.references[i : i + 1],
-            views.foreground[i : i + 1],
+def finished_candidate(model: Model, reachable: Sequence[torch.Tensor | None]) -> Candidate:
+    """The model's candidate as it will ship, before 8-bit encoding (:func:`finish`)."""
+    with torch.no_grad():
+        textures, uvs = model.candidate()
+        return finish(textures, reachable), None if uvs is None else uvs.detach().clone()
+
+
+def validate(validation: Validation, candidate: Candidate) -> dict[str, float]:
+    """PSNR-fg per validation set of a finished candidate, 8-bit quantised as it ships: what
+    is validated is what ships."""
+    textures, uvs = candidate
+    return validation.psnr([None if t is None else quantize_linear(t) for t in textures], uvs)
+
+
+class _Caching:
+    """Caches the training pool and the validation views between steps.
+
+    Before the first step :meth:`until_trainable` caches ``views_per_step`` training views.
+    After each step :meth:`after_step` caches :data:`CACHED_PER_STEP` more: training and
+    validation views in turn until the pool has :data:`EARLY_POOL`, then the validation views,
+    then the rest of the pool; the validation freezes once complete. Under a budget, once
+    :data:`CACHING_SHARE` of it is spent, the pool stops growing and the validation freezes at
+    what is cached.
+    """
+
+    def __init__(
+        self,
+        train: ViewCache,
+        validation: Validation,
+        config: OptimizeConfig,
+        start: float,
+        emit: Callable[[ProgressEvent], None],
+    ):
+        self.train, self.validation, self.config = train, validation, config
+        self.start, self.emit = start, emit
+        self.deadline = None
+        if config.time_budget is not None:
+            self.deadline = start + CACHING_SHARE * config.time_budget
+
+    @property
+    def pool(self) -> ViewSet:
+        return self.train.views
+
+    def _cache_pool_view(self) -> bool:
+        if not self.pool.cache_next():
+            return False
+        device = self.train.renderer.device
+        zeros = [None if s is None else torch.zeros(*s, 3, device=device) for s in self.train.sizes]
+        self.train.render(len(self.pool) - 1, zeros, None)  # finds the view's taps
+        return True
+
+    def _cache_one(self) -> bool:
+        """Cache the next view due; False when nothing is left to cache."""
+        pool_first = self.validation.frozen or (
+            len(self.pool) < EARLY_POOL and len(self.pool) <= self.validation.num_views
         )
-        for i in range(len(views))
-    ]
-    return float(torch.cat(values).mean()), (textures, uvs)
+        if pool_first:
+            return self._cache_pool_view() or self.validation.cache_next()
+        return self.validation.cache_next() or self._cache_pool_view()
+
+    def until_trainable(self) -> None:
+        """Cache the training views the first step needs."""
+        needed = min(self.config.views_per_step, len(self.pool.cameras))
+        while len(self.pool) < needed and self._cache_pool_view():
+            elapsed = time.perf_counter() - self.start
+            self.emit(
+                ProgressEvent(
+                    "caching", 0, self.config.steps, elapsed, done=len(self.pool), total=needed
+                )
+            )
+
+    def after_step(self) -> None:
+        """Cache :data:`CACHED_PER_STEP` views; past the caching deadline, :meth:`close`."""
+        if self.deadline is not None and time.perf_counter() > self.deadline:
+            self.close()
+            return
+        for _ in range(CACHED_PER_STEP):
+            if not self._cache_one():
+                break
+        if self.validation.complete:
+            self.validation.freeze()
+
+    def close(self) -> None:
+        """No more training views; cache the validation views left until the caching deadline
+        (all of them, without a budget), and validate on those from now on."""
+        self.pool.cameras = self.pool.cameras[: len(self.pool)]
+        while self.deadline is None or time.perf_counter() < self.deadline:
+            if not self.validation.cache_next():
+                break
+        self.validation.freeze()
+
+    @property
+    def views_done(self) -> tuple[int, int]:
+        """``(cached, planned)`` views, training and validation together."""
+        cached = len(self.pool) + self.validation.num_views
+        return cached, len(self.pool.cameras) + self.validation.planned
 
 
 def optimize(
     renderer: Renderer,
     model: Model,
     config: OptimizeConfig,
-    validation: ViewCache,
+    validation: Validation,
     on_event: Callable[[ProgressEvent], None] | None = None,
     controller: Controller | None = None,
     keeps_uvs: bool = True,
     perceptual: PerceptualTerm | None = None,
     training_cameras: Sequence[Camera] | None = None,
     started_at: float | None = None,
+    reserve: float = 0.0,
 ) -> OptimizeResult:
     """Optimise ``model`` so that renders of its candidate match renders of the original.
 
@@ -348,31 +371,49 @@ def optimize(
         renderer: the mesh's renderer (its device is the device of the run).
         model: the candidate's parameters.
         config: loop settings.
-        validation: the cached validation views (Q), with taps for the candidate's texture
-            sizes (which the training pool's taps take too).
+        validation: the validation sets (their views may not be cached yet) with the taps of
+            the candidate's texture sizes, which the training pool's taps take too, and the
+            baselines whose floor the result must clear.
         on_event: receives :class:`ProgressEvent` reports.
         controller: lets another thread pause, resume or stop the loop.
-        keeps_uvs: the model never changes UVs, so texture taps can be cached.
+        keeps_uvs: the model never changes UVs, so texture taps can be cached and gutters
+            filled.
         perceptual: an extra loss term (the network's VGG-19 term).
         training_cameras: the views to train on (default: ``config.pool_views`` cameras drawn
             from ``config.distances``). Methods never train on the validation cameras; the
             texel-ceiling benchmark does, to bound what any texture could reach there.
         started_at: the ``time.perf_counter()`` the time budget counts from (default: now), so
-            that a method's own set-up counts too.
+            that the job's and the method's set-up count too.
+        reserve: seconds the caller needs after the loop returns (under a budget).
 
     Returns:
-        The best validated candidate (detached) and the run's history.
+        The best validated candidate (detached) by :meth:`Validation.rank`: the best on Q of
+        those that clear the floor on every set, or the one that falls least below it; and the
+        run's history.
     """
     start = time.perf_counter() if started_at is None else started_at
     controller = controller or Controller()
     emit = on_event or (lambda event: None)
-    train, seen = cache_training_views(
-        renderer, validation.sizes, config, keeps_uvs, training_cameras, start, emit
+    cameras = training_cameras or sample_training_cameras(
+        config.pool_views, config.seed, config.distances
     )
+    train = ViewCache(ViewSet(renderer, cameras, eager=False), validation.sizes, keeps_uvs)
+    farthest = max(
+        camera.distance for views in (cameras, *_set_cameras(validation)) for camera in views
+    )
+    reachable = [None] * len(validation.sizes)
+    if keeps_uvs:
+        masks = reachable_masks(renderer.mesh, validation.sizes, farthest, renderer.resolution)
+        reachable = [None if m is None else m.to(renderer.device) for m in masks]
+    caching = _Caching(train, validation, config, start, emit)
+    caching.until_trainable()
     optimizer = torch.optim.AdamW(
         list(model.parameters()), lr=config.lr, weight_decay=config.weight_decay
     )
     generator = torch.Generator().manual_seed(config.seed)
+    start_candidate = finished_candidate(model, reachable)
+    best = _Best(validation)
+    deadline = None if config.time_budget is None else start + config.time_budget
 
     def candidate() -> Candidate:
         with torch.no_grad():
@@ -380,16 +421,41 @@ def optimize(
             copies = [None if t is None else t.detach().clone() for t in textures]
             return copies, None if uvs is None else uvs.detach().clone()
 
-    best = _Best()
-    validation_start = time.perf_counter()
-    best.offer(*validate(validation, model, seen), 0)  # the start is a candidate too
-    # A run under a budget stops early enough for one more step and the final validation (with
-    # half a validation's time to spare: on a busy machine one takes longer than the next).
-    reserve = 1.5 * (time.perf_counter() - validation_start)
-    validated_step = 0
+    def offer(scores: dict[str, float], finished: Candidate, step: int) -> bool:
+        improved = best.offer(scores, finished, step)
+        event = ProgressEvent(
+            "validation",
+            step,
+            config.steps,
+            time.perf_counter() - start,
+            loss_value,
+            scores["Q"],
+            best.psnr,
+            scores=scores,
+            candidate=candidate,
+        )
+        emit(event)
+        return improved
+
+    def validate_start() -> None:
+        emit(
+            ProgressEvent(
+                "baselines",
+                step,
+                config.steps,
+                time.perf_counter() - start,
+                baselines=validation.baseline_scores(),
+            )
+        )
+        best.offer(validate(validation, start_candidate), start_candidate, 0)
+
+    def seconds_needed() -> float:
+        owed = 1 + (not best.has_start)  # the last state, and the start if not yet validated
+        return 1.5 * validation.seconds_needed(owed, caching=True) + reserve
+
     history: list[dict] = []
     step, loss_value, stopped_by = 0, math.nan, "steps"
-    step_seconds = 0.0
+    validated_step, step_seconds, first_step = -1, 0.0, math.nan
     loop_start = time.perf_counter()
     while step < config.steps:
         controller.wait_while_paused()
@@ -397,10 +463,7 @@ def optimize(
             stopped_by = "stopped"
             break
         step_start = time.perf_counter()
-        if (
-            config.time_budget is not None
-            and step_start + step_seconds + reserve - start > config.time_budget
-        ):
+        if deadline is not None and step_start + step_seconds + seconds_needed() > deadline:
             stopped_by = "time budget"
             break
         views = torch.randperm(len(train), generator=generator)[: config.views_per_step]
@@ -418,6 +481,9 @@ def optimize(
         step += 1
         step_seconds = time.perf_counter() - step_start
         elapsed = time.perf_counter() - start
+        if step == 1:
+            first_step = elapsed
+        done, total = caching.views_done
         emit(
             ProgressEvent(
                 "step",
@@ -426,38 +492,55 @@ def optimize(
                 elapsed,
                 loss_value,
                 best_psnr=best.psnr,
+                done=done,
+                total=total,
                 candidate=candidate,
             )
         )
         history.append({"step": step, "loss": loss_value, "elapsed": elapsed})
+        caching.after_step()
+        if not validation.frozen:
+            continue
+        if not best.has_start:
+            validate_start()
         if step % config.validate_every == 0 or step == config.steps:
-            psnr, finished = validate(validation, model, seen)
+            finished = finished_candidate(model, reachable)
+            scores = validate(validation, finished)
             validated_step = step
-            improved = best.offer(psnr, finished, step)
-            history[-1]["validation_psnr_fg"] = psnr
-            emit(
-                ProgressEvent(
-                    "validation",
-                    step,
-                    config.steps,
-                    time.perf_counter() - start,
-                    loss_value,
-                    psnr,
-                    best.psnr,
-                    candidate=candidate,
-                )
-            )
+            improved = offer(scores, finished, step)
+            history[-1]["validation_psnr_fg"] = scores["Q"]
             if not improved and config.patience is not None and best.stale >= config.patience:
                 stopped_by = "plateau"
                 break
 
-    if validated_step != step:  # stopped between validations: the current state may be better
-        best.offer(*validate(validation, model, seen), step)
+    caching.close()
+    if not best.has_start:
+        validate_start()
+    if validated_step != step and step > 0:  # stopped between validations: it may be better
+        finished = finished_candidate(model, reachable)
+        offer(validate(validation, finished), finished, step)
     seconds = time.perf_counter() - start
     emit(ProgressEvent("done", step, config.steps, seconds, loss_value, None, best.psnr))
     return OptimizeResult(
-        best.textures, best.uvs, step, best.step, best.psnr, stopped_by, seconds, history
+        best.textures,
+        best.uvs,
+        step,
+        best.step,
+        best.scores,
+        best.clears,
+        best.rank[0],
+        validation.baseline_scores(),
+        stopped_by,
+        seconds,
+        first_step,
+        len(train),
+        dict(validation.counts or {}),
+        history,
     )
+
+
+def _set_cameras(validation: Validation) -> list[list[Camera]]:
+    return [cache.views.cameras for cache in validation.sets.values()]
 
 
 def _time_spent(now: float, start: float, loop_start: float, config: OptimizeConfig) -> float:
@@ -484,71 +567,34 @@ def _learning_rate_factor(step: int, time_spent: float, config: OptimizeConfig) 
 
 
 class _Best:
-    """The best validated candidate so far."""
+    """The best validated candidate so far, by :meth:`Validation.rank`: the best on Q of those
+    that clear the floor, or the one that falls least below it."""
 
-    def __init__(self):
-        self.psnr = -math.inf
+    def __init__(self, validation: Validation):
+        self.validation = validation
+        self.scores: dict[str, float] = {}
+        self.rank = (-math.inf, -math.inf)
         self.step = -1
         self.stale = 0
         self.textures: list[torch.Tensor | None] = []
         self.uvs: torch.Tensor | None = None
+        self.has_start = False
 
-    def offer(self, psnr: float, candidate: Candidate, step: int) -> bool:
-        """Keep ``candidate`` (finished, as validated) if it scored better than the best."""
-        if psnr <= self.psnr:
+    @property
+    def psnr(self) -> float:
+        return self.scores.get("Q", -math.inf)
+
+    @property
+    def clears(self) -> bool:
+        return self.rank[0] == 0.0
+
+    def offer(self, scores: dict[str, float], candidate: Candidate, step: int) -> bool:
+        """Keep ``candidate`` (finished, as validated) if it ranks above the best."""
+        self.has_start = self.has_start or step == 0
+        rank = self.validation.rank(scores)
+        if rank <= self.rank:
             self.stale += 1
             return False
         self.textures, self.uvs = candidate
-        self.psnr, self.step, self.stale = psnr, step, 0
+        self.scores, self.rank, self.step, self.stale = scores, rank, step, 0
         return True
-
-
-def seen_texels(cache: ViewCache, material: int) -> torch.Tensor:
-    """``(h, w)`` bool: level-0 texels that some cached view's taps read, through any level.
-
-    A texel is seen when a tap of a view reads it at level 0, or reads a coarser-level texel
-    whose box average includes it.
-    """
-    layout = cache.layouts[material]
-    usage = torch.zeros(layout.num_texels, device=layout.heights.device)
-    for view_taps in cache.taps or []:
-        taps = view_taps[material]
-        if taps is not None:
-            usage.index_add_(0, taps.texel, taps.weight.abs())
-    ones = torch.ones(*layout.size, 1, device=usage.device, requires_grad=True)
-    chain = torch.cat([level.reshape(-1) for level in build_mip_chain(ones)])
-    (grad,) = torch.autograd.grad((chain * usage).sum(), ones)
-    return grad[..., 0] > 0
-
-
-def fill_unseen(texture: torch.Tensor, seen: torch.Tensor) -> torch.Tensor:
-    """Pull-push fill: unseen texels take the average colour of the nearest seen ones.
-
-    Seen texels are returned unchanged. Pull: average colour and coverage down a pyramid of
-    2 x 2 sums; push: every unseen texel takes the value of its parent one level coarser.
-
-    Args:
-        texture: ``(h, w, C)`` float texture.
-        seen: ``(h, w)`` bool.
-
-    Returns:
-        ``(h, w, C)`` texture with every texel defined (if any texel is seen).
-    """
-    if seen.all() or not seen.any():
-        return texture.clone()
-    weight = seen.to(texture.dtype)[None, None]
-    value = texture.permute(2, 0, 1)[None] * weight
-    pyramid = [(value, weight)]
-    while pyramid[-1][1].shape[-1] > 1 or pyramid[-1][1].shape[-2] > 1:
-        value, weight = pyramid[-1]
-        pool = lambda x: torch.nn.functional.avg_pool2d(x, 2, ceil_mode=True) * 4  # noqa: E731
-        pyramid.append((pool(value), pool(weight)))
-    value, weight = pyramid[-1]
-    filled = value / weight.clamp_min(1e-12)
-    for value, weight in reversed(pyramid[:-1]):
-        parent = torch.nn.functional.interpolate(filled, scale_factor=2, mode="nearest")
-        parent = parent[..., : value.shape[-2], : value.shape[-1]]
-        own = value / weight.clamp_min(1e-12)
-        filled = torch.where(weight > 0, own, parent)
-    result = filled[0].permute(1, 2, 0)
-    return torch.where(seen[..., None], texture, result)

@@ -62,6 +62,7 @@ class Renderer:
         self.face_material = torch.from_numpy(np.asarray(mesh.face_material, np.int64)).to(**to)
         factors = np.stack([m.base_color_factor[:3] for m in mesh.materials]).astype(np.float32)
         self.factors = torch.from_numpy(factors).to(**to)
+        self._reference: list[MipTexture | None] | None = None
 
     @property
     def resolution(self) -> int:
@@ -78,8 +79,11 @@ class Renderer:
 
     def reference_textures(self) -> list[MipTexture | None]:
         """Mip chains of the protocol's reference maps
-        (:func:`geoscaler.filters.reference_textures`; None for untextured materials)."""
-        return self.mip_textures(reference_textures(self.mesh))
+        (:func:`geoscaler.filters.reference_textures`; None for untextured materials), made
+        once per renderer (read only)."""
+        if self._reference is None:
+            self._reference = self.mip_textures(reference_textures(self.mesh))
+        return self._reference
 
     def rasterize(self, camera: Camera) -> GBuffer:
         """The G-buffer of one camera at ``resolution x resolution`` samples."""

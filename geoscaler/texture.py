@@ -314,3 +314,36 @@ class MipTexture:
             footprint.du_dx, footprint.dv_dx, footprint.du_dy, footprint.dv_dy
         )
         return self.trilinear(footprint.u, footprint.v, lod)
+
+
+def fill_gutters(texture: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
+    """Pull-push fill: texels outside ``keep`` take the average colour of the nearest kept ones.
+
+    Kept texels are returned unchanged. Pull: average colour and coverage down a pyramid of
+    2 x 2 sums; push: every other texel takes the value of its parent one level coarser.
+
+    Args:
+        texture: ``(h, w, C)`` float texture.
+        keep: ``(h, w)`` bool.
+
+    Returns:
+        ``(h, w, C)`` texture with every texel defined (if any texel is kept).
+    """
+    if keep.all() or not keep.any():
+        return texture.clone()
+    weight = keep.to(texture.dtype)[None, None]
+    value = texture.permute(2, 0, 1)[None] * weight
+    pyramid = [(value, weight)]
+    while pyramid[-1][1].shape[-1] > 1 or pyramid[-1][1].shape[-2] > 1:
+        value, weight = pyramid[-1]
+        pool = lambda x: F.avg_pool2d(x, 2, ceil_mode=True) * 4  # noqa: E731
+        pyramid.append((pool(value), pool(weight)))
+    value, weight = pyramid[-1]
+    filled = value / weight.clamp_min(1e-12)
+    for value, weight in reversed(pyramid[:-1]):
+        parent = F.interpolate(filled, scale_factor=2, mode="nearest")
+        parent = parent[..., : value.shape[-2], : value.shape[-1]]
+        own = value / weight.clamp_min(1e-12)
+        filled = torch.where(weight > 0, own, parent)
+    result = filled[0].permute(1, 2, 0)
+    return torch.where(keep[..., None], texture, result)

@@ -14,6 +14,7 @@ Only square textures are handled by the network's maps (the rasteriser's grid is
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,9 +22,11 @@ import torch
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from geoscaler.cameras import sample_extent
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import TexturedMesh
 from geoscaler.raster import GBuffer, rasterize
+from geoscaler.texture import build_mip_chain, mip_sizes
 
 
 def uv_corner_ids(mesh: TexturedMesh) -> np.ndarray:
@@ -241,3 +244,166 @@ def vertex_materials(mesh: TexturedMesh) -> np.ndarray:
     materials = np.full(len(mesh.uvs), -1, np.int64)
     materials[used] = np.asarray(mesh.face_material, np.int64)[first_face[used]]
     return materials
+
+
+# ------------------------------------------------------------------ texels the renderer can read
+
+GRAZING_STRETCH = 8.0
+"""How far an oblique view may stretch a texel footprint beyond a frontal one's: 1 / cos of the
+angle between view ray and surface normal, 8 up to 82.8 degrees. Lookups at more grazing angles
+may read coarser levels than :func:`face_max_levels` allows for."""
+_LARGE_LAYOUT = 1 << 26
+"""(face, texel cell) pairs beyond which a layout counts as reaching every texel."""
+_PAIRS_PER_CHUNK = 1 << 21
+
+
+def face_max_levels(
+    mesh: TexturedMesh, faces: np.ndarray, size: tuple[int, int], sample_extent: float
+) -> np.ndarray:
+    """The coarsest mip level a trilinear lookup on each face can read, or -1 for a face of
+    zero area, which no view shows.
+
+    A lookup's level of detail is log2 of the larger singular value of the screen-to-texel
+    Jacobian. On a face it is at most ``sigma * sample_extent * GRAZING_STRETCH``, where
+    ``sigma`` is the face's larger stretch in texels per scene unit; trilinear filtering reads
+    the level below that bound and the next.
+
+    Args:
+        mesh: the mesh (positions in the protocol's unit scene).
+        faces: ``(F, 3)`` int vertex indices.
+        size: ``(h, w)`` texels of level 0.
+        sample_extent: the largest scene size of one screen sample on a surface facing the
+            camera (the farthest depth times the sample's angular size).
+
+    Returns:
+        ``(F,)`` int64 levels in ``[-1, num_levels - 1]``.
+    """
+    height, width = size
+    positions = mesh.normalized_positions().astype(np.float64)[faces]  # (F, 3, 3)
+    edge1, edge2 = positions[:, 1] - positions[:, 0], positions[:, 2] - positions[:, 0]
+    length1 = np.linalg.norm(edge1, axis=1)
+    normal = np.cross(edge1, edge2)
+    area2 = np.linalg.norm(normal, axis=1)  # twice the area
+    visible = area2 > 1e-12 * np.maximum(length1, 1e-30) ** 2
+    # The edges in an orthonormal frame of the face's plane: P = [[l1, e2.a], [0, e2.b]].
+    p00 = np.where(visible, length1, 1.0)
+    p01 = np.einsum("ij,ij->i", edge2, edge1) / p00
+    p11 = np.where(visible, area2 / p00, 1.0)
+    uvs = tiled_face_uvs(mesh, faces)
+    texels = np.stack([uvs[..., 0] * width, (1.0 - uvs[..., 1]) * height], axis=-1)
+    t1, t2 = texels[:, 1] - texels[:, 0], texels[:, 2] - texels[:, 0]
+    # J = T P^-1 with T = [t1 t2]; P^-1 = [[1/p00, -p01/(p00 p11)], [0, 1/p11]].
+    j_col0 = t1 / p00[:, None]
+    j_col1 = (t2 - t1 * (p01 / p00)[:, None]) / p11[:, None]
+    frobenius = (j_col0**2).sum(1) + (j_col1**2).sum(1)
+    det = j_col0[:, 0] * j_col1[:, 1] - j_col0[:, 1] * j_col1[:, 0]
+    gap = np.sqrt(np.maximum(frobenius**2 - 4 * det**2, 0.0))
+    sigma = np.sqrt(np.maximum(0.5 * (frobenius + gap), 1e-30))
+    bound = np.log2(sigma * sample_extent * GRAZING_STRETCH)
+    num_levels = len(mip_sizes(height, width))
+    levels = np.clip(np.floor(bound) + 1, 0, num_levels - 1).astype(np.int64)
+    return np.where(visible, levels, -1)
+
+
+def reachable_texels(
+    mesh: TexturedMesh, material: int, size: tuple[int, int], sample_extent: float
+) -> torch.Tensor:
+    """``(h, w)`` bool: level-0 texels of a ``size`` texture of ``material`` that a lookup can
+    read, directly or through a coarser level, from any view whose samples are at most
+    ``sample_extent`` scene units wide (:func:`face_max_levels`).
+
+    Only the UV layout and the geometry decide it, never the views that happen to be cached:
+    at each level every texel cell a face touches, and its bilinear neighbours, are reachable.
+    A layout too large to rasterise cell by cell (faces that overlap many times) counts as
+    reaching every texel.
+    """
+    faces = np.asarray(mesh.faces, np.int64)[np.asarray(mesh.face_material) == material]
+    max_levels = face_max_levels(mesh, faces, size, sample_extent)
+    uvs = tiled_face_uvs(mesh, faces)
+    level_masks = []
+    for level, (h, w) in enumerate(mip_sizes(*size)):
+        chosen = max_levels >= level
+        corners = np.stack(
+            [uvs[chosen][..., 0] * w, (1.0 - uvs[chosen][..., 1]) * h], axis=-1
+        )  # (F', 3, 2) in texel cells of this level
+        cells = _touched_cells(corners, h, w)
+        if cells is None:
+            return torch.ones(size, dtype=torch.bool)
+        level_masks.append(_dilate_wrapped(cells))
+    ones = torch.ones(*size, 1, dtype=torch.float64, requires_grad=True)
+    chain = build_mip_chain(ones)
+    read = sum((lvl[..., 0] * m).sum() for lvl, m in zip(chain, level_masks, strict=True))
+    (grad,) = torch.autograd.grad(read, ones)
+    return grad[..., 0] > 0
+
+
+def reachable_masks(
+    mesh: TexturedMesh,
+    sizes: Sequence[tuple[int, int] | None],
+    farthest: float,
+    samples_per_side: int,
+) -> list[torch.Tensor | None]:
+    """Per material the ``(h, w)`` bool texels (:func:`reachable_texels`) that views from at
+    most ``farthest`` from the origin, ``samples_per_side`` samples wide, can read: a surface
+    point is at most the unit scene's radius farther. The other texels are gutters."""
+    extent = sample_extent(farthest + 1.0, samples_per_side)
+    return [
+        None if size is None else reachable_texels(mesh, index, size, extent)
+        for index, size in enumerate(sizes)
+    ]
+
+
+def _touched_cells(corners: np.ndarray, height: int, width: int) -> torch.Tensor | None:
+    """``(height, width)`` bool: texel cells that some triangle overlaps (repeat addressing),
+    by a separating-axis test of every cell in each triangle's bounding box; None when that
+    is more than :data:`_LARGE_LAYOUT` pairs.
+
+    Args:
+        corners: ``(F, 3, 2)`` float64 corners in cells (x right, y down; cell (i, j) spans
+            ``[j, j + 1) x [i, i + 1)``).
+    """
+    mask = np.zeros(height * width, bool)
+    low = np.floor(corners.min(axis=1)).astype(np.int64)  # (F, 2)
+    high = np.floor(corners.max(axis=1)).astype(np.int64)
+    span = np.minimum(high - low + 1, [width, height])  # a span past a tile covers it all
+    counts = span[:, 0] * span[:, 1]
+    if counts.sum() > _LARGE_LAYOUT:
+        return None
+    # Inward edge normals (x, y) of each triangle, zero for degenerate ones (bounding box only).
+    edges = np.roll(corners, -1, axis=1) - corners  # (F, 3, 2)
+    signed = edges[:, 0, 0] * -edges[:, 2, 1] + edges[:, 0, 1] * edges[:, 2, 0]
+    orientation = np.sign(signed)[:, None]
+    normals = np.stack([-edges[..., 1], edges[..., 0]], axis=-1) * orientation[..., None]
+    offsets = np.einsum("fkc,fkc->fk", normals, corners)  # n . p_k
+    reach = 0.5 * np.abs(normals).sum(-1)  # how far a cell's corners extend along n
+    for faces, rank in _pair_chunks(counts):
+        x = low[faces, 0] + rank % span[faces, 0]
+        y = low[faces, 1] + rank // span[faces, 0]
+        centres = np.stack([x + 0.5, y + 0.5], axis=-1)[:, None]  # (n, 1, 2)
+        side = (normals[faces] * centres).sum(-1) - offsets[faces] + reach[faces]
+        inside = (side >= 0).all(axis=1)
+        mask[np.mod(y[inside], height) * width + np.mod(x[inside], width)] = True
+    return torch.from_numpy(mask.reshape(height, width))
+
+
+def _pair_chunks(counts: np.ndarray):
+    """Yield ``(faces, rank)``: for each (face, cell-of-its-box) pair, the face and the cell's
+    rank within the box, at most :data:`_PAIRS_PER_CHUNK` pairs at a time."""
+    ends = np.cumsum(counts)
+    first = 0
+    while first < len(counts):
+        limit = (ends[first - 1] if first else 0) + _PAIRS_PER_CHUNK
+        last = max(int(np.searchsorted(ends, limit, side="right")), first + 1)
+        part = counts[first:last]
+        faces = np.repeat(np.arange(first, last), part)
+        starts = np.cumsum(part) - part
+        rank = np.arange(int(part.sum())) - np.repeat(starts, part)
+        yield faces, rank
+        first = last
+
+
+def _dilate_wrapped(mask: torch.Tensor) -> torch.Tensor:
+    """``(h, w)`` float: ``mask`` grown by one cell (bilinear neighbours), wrapping around."""
+    grid = mask.to(torch.float64)[None, None]
+    padded = torch.nn.functional.pad(grid, (1, 1, 1, 1), mode="circular")
+    return torch.nn.functional.max_pool2d(padded, 3, stride=1)[0, 0]

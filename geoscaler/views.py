@@ -10,7 +10,6 @@ are scored as they would ship: 8-bit textures, compared with :func:`geoscaler.me
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -36,19 +35,20 @@ Progress = Callable[[int, int], None]
 
 
 class ViewSet:
-    """G-buffers, reference renders and foreground masks of a list of cameras.
+    """G-buffers, reference renders and foreground masks of a list of cameras, cached in order.
+
+    A set caches all its cameras when made, or (``eager=False``) none: then :meth:`cache_next`
+    adds them one at a time, so that a loop can build its views while it trains.
 
     Args:
         renderer: the renderer of the mesh under evaluation.
         cameras: the views (e.g. :func:`geoscaler.cameras.validation_cameras`).
         progress: optional callback while the set is built.
-        deadline: a ``time.perf_counter()`` value; cameras not cached by then are dropped
-            (keeping at least ``min_views``). For training pools under a time budget.
+        eager: cache every camera now.
 
     Attributes:
-        gbuffers: one :class:`GBuffer` per camera.
-        references: ``(N, H, W, 3)`` float32 sRGB renders with the reference textures.
-        foreground: ``(N, H, W)`` bool pixels the mesh covers.
+        cameras: every camera of the set, cached or not; ``len(self)`` are cached.
+        gbuffers: one :class:`GBuffer` per cached camera.
     """
 
     def __init__(
@@ -56,30 +56,57 @@ class ViewSet:
         renderer: Renderer,
         cameras: Sequence[Camera],
         progress: Progress | None = None,
-        deadline: float | None = None,
-        min_views: int = 1,
+        eager: bool = True,
     ):
         self.renderer = renderer
         self.cameras = list(cameras)
-        reference = renderer.reference_textures()
         self.gbuffers: list[GBuffer] = []
-        references, foreground = [], []
-        with torch.no_grad():
-            for index, camera in enumerate(self.cameras):
-                if deadline is not None and index >= min_views and time.perf_counter() > deadline:
-                    self.cameras = self.cameras[:index]  # out of time: keep what is cached
-                    break
-                gbuffer = renderer.rasterize(camera)
-                self.gbuffers.append(gbuffer)
-                references.append(renderer.render(gbuffer, reference))
-                foreground.append(renderer.foreground(gbuffer))
+        self._references: list[torch.Tensor] = []
+        self._foreground: list[torch.Tensor] = []
+        self._stacked: tuple[torch.Tensor, torch.Tensor] | None = None
+        if eager:
+            while self.cache_next():
                 if progress:
-                    progress(index + 1, len(self.cameras))
-        self.references = torch.stack(references)
-        self.foreground = torch.stack(foreground)
+                    progress(len(self), len(self.cameras))
 
     def __len__(self) -> int:
-        return len(self.cameras)
+        return len(self.gbuffers)
+
+    @property
+    def complete(self) -> bool:
+        """Every camera is cached."""
+        return len(self) == len(self.cameras)
+
+    @torch.no_grad()
+    def cache_next(self) -> bool:
+        """Cache the next camera; False (and nothing done) when all are cached."""
+        if self.complete:
+            return False
+        gbuffer = self.renderer.rasterize(self.cameras[len(self)])
+        self._references.append(self.renderer.render(gbuffer, self.renderer.reference_textures()))
+        self._foreground.append(self.renderer.foreground(gbuffer))
+        self.gbuffers.append(gbuffer)
+        self._stacked = None
+        return True
+
+    @property
+    def references(self) -> torch.Tensor:
+        """``(N, H, W, 3)`` float32 sRGB renders of the cached views with the reference maps."""
+        return self._stack()[0]
+
+    @property
+    def foreground(self) -> torch.Tensor:
+        """``(N, H, W)`` bool pixels the mesh covers in each cached view."""
+        return self._stack()[1]
+
+    def _stack(self) -> tuple[torch.Tensor, torch.Tensor]:
+        if self._stacked is None:
+            self._stacked = torch.stack(self._references), torch.stack(self._foreground)
+        return self._stacked
+
+    def reference(self, view: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """``((H, W, 3) reference, (H, W) foreground)`` of one cached view, without stacking."""
+        return self._references[view], self._foreground[view]
 
     def render(
         self,
@@ -87,21 +114,26 @@ class ViewSet:
         uvs: torch.Tensor | None = None,
         views: Sequence[int] | None = None,
     ) -> torch.Tensor:
-        """``(len(views), H, W, 3)`` sRGB renders of a candidate (all views by default)."""
+        """``(len(views), H, W, 3)`` sRGB renders of a candidate (all cached views by default)."""
         views = range(len(self)) if views is None else views
         return torch.stack([self.renderer.render(self.gbuffers[i], textures, uvs) for i in views])
 
     def score(
-        self, textures: Sequence[np.ndarray | None], uvs: np.ndarray | None = None
+        self,
+        textures: Sequence[np.ndarray | None],
+        uvs: np.ndarray | None = None,
+        count: int | None = None,
     ) -> dict[str, torch.Tensor]:
-        """Protocol metrics of 8-bit candidate textures (and UVs), each ``(N,)`` over views."""
+        """Protocol metrics of 8-bit candidate textures (and UVs), each ``(N,)`` over the first
+        ``count`` cached views (all by default)."""
+        count = len(self) if count is None else count
         mips = self.renderer.mip_textures(textures)
         uv_tensor = None
         if uvs is not None:
             uv_tensor = torch.as_tensor(uvs, dtype=torch.float32, device=self.renderer.device)
         with torch.no_grad():
-            images = self.render(mips, uv_tensor)
-            return evaluate(images, self.references, self.foreground)
+            images = self.render(mips, uv_tensor, range(count))
+            return evaluate(images, self.references[:count], self.foreground[:count])
 
 
 @dataclass
@@ -127,6 +159,9 @@ class ViewCache:
     """A :class:`ViewSet` plus, for models that keep the mesh's UVs, every view's texture taps
     for candidate textures of fixed sizes, so a render is one gather per material.
 
+    Taps are found when a view is first rendered, so a cache follows its view set as it grows
+    (several caches, one per set of sizes, may share one view set).
+
     Args:
         views: cached G-buffers and reference renders.
         sizes: per material the candidate's texture ``(h, w)`` (None: untextured).
@@ -139,15 +174,20 @@ class ViewCache:
         device = self.renderer.device
         self.sizes = list(sizes)
         self.layouts = [None if s is None else MipLayout(*s, device) for s in sizes]
-        self.taps: list[list[PixelTaps | None]] | None = None
-        self.untextured: list[torch.Tensor] | None = None
-        if with_taps:
-            with torch.no_grad():
-                self.taps = [self._taps(gbuffer) for gbuffer in views.gbuffers]
-                self.untextured = [self._untextured(gbuffer) for gbuffer in views.gbuffers]
+        self.with_taps = with_taps
+        self.taps: list[list[PixelTaps | None]] = []
+        self.untextured: list[torch.Tensor] = []
 
     def __len__(self) -> int:
         return len(self.views)
+
+    @torch.no_grad()
+    def _find_taps(self, view: int) -> None:
+        """Find the taps of every cached view up to ``view``."""
+        while len(self.taps) <= view:
+            gbuffer = self.views.gbuffers[len(self.taps)]
+            self.taps.append(self._taps(gbuffer))
+            self.untextured.append(self._untextured(gbuffer))
 
     def _taps(self, gbuffer: GBuffer) -> list[PixelTaps | None]:
         footprint = self.renderer.footprint(gbuffer)
@@ -188,9 +228,10 @@ class ViewCache:
     ) -> torch.Tensor:
         """``(H, W, 3)`` sRGB render of a candidate in cached view ``view`` (differentiable)."""
         gbuffer = self.views.gbuffers[view]
-        if uvs is not None or self.taps is None or self.untextured is None:
+        if uvs is not None or not self.with_taps:
             mips = [None if t is None else MipTexture(t) for t in textures]
             return self.renderer.render(gbuffer, mips, uvs)
+        self._find_taps(view)
         image = self.untextured[view]
         for index, (texture, taps) in enumerate(zip(textures, self.taps[view], strict=True)):
             if texture is None or taps is None:
@@ -202,22 +243,28 @@ class ViewCache:
         return linear_to_srgb(image.T.reshape(side, side, 3))
 
     def score(
-        self, textures: Sequence[np.ndarray | None], uvs: np.ndarray | None = None
+        self,
+        textures: Sequence[np.ndarray | None],
+        uvs: np.ndarray | None = None,
+        count: int | None = None,
     ) -> dict[str, torch.Tensor]:
-        """Protocol metrics of 8-bit candidate textures (and UVs), each ``(N,)`` over views.
+        """Protocol metrics of 8-bit candidate textures (and UVs), each ``(N,)`` over the first
+        ``count`` cached views (all by default).
 
         The same figures as :meth:`ViewSet.score` up to float rounding (about 1e-7 in the
         renders): with the cached taps a candidate is one gather per view. Candidates of other
         sizes or with their own UVs are rendered in full.
         """
+        count = len(self) if count is None else count
         sizes = [None if t is None else tuple(t.shape[:2]) for t in textures]
-        if uvs is not None or self.taps is None or sizes != self.sizes:
-            return self.views.score(textures, uvs)
+        if uvs is not None or not self.with_taps or sizes != self.sizes:
+            return self.views.score(textures, uvs, count)
         device = self.renderer.device
         linear = [None if t is None else texture_to_linear(t, device) for t in textures]
         with torch.no_grad():
-            images = torch.stack([self.render(i, linear, None) for i in range(len(self))])
-            return evaluate(images, self.views.references, self.views.foreground)
+            images = torch.stack([self.render(i, linear, None) for i in range(count)])
+            views = self.views
+            return evaluate(images, views.references[:count], views.foreground[:count])
 
 
 def cache_view_set(

@@ -17,12 +17,13 @@ from geoscaler.errors import GeoscalerError
 from geoscaler.figures import colormap
 from geoscaler.filters import reference_textures
 from geoscaler.io import save_mesh
-from geoscaler.job import ROW_KEYS, JobObserver, compare_mesh
+from geoscaler.job import JobObserver, compare_mesh
 from geoscaler.methods import MethodOptions, MethodResult, get_method, registry
 from geoscaler.metrics import evaluate, ssim_fg, ssim_full
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import BYTES_PER_TEXEL, Evaluation
 from geoscaler.report import comparison_json, comparison_picture, dumps, format_table, pick_views
+from geoscaler.rows import ROW_KEYS
 
 VIEWS = (0, 31)  # two protocol views keep the tests fast; the CLI always scores all 60
 
@@ -265,15 +266,15 @@ def test_learned_methods_validate_on_the_views_compare_scores_on(monkeypatch):
     import geoscaler.methods.learned
 
     def refuse(*args, **kwargs):
-        raise AssertionError("the method cached its own validation views")
+        raise AssertionError("the method made its own validation")
 
-    monkeypatch.setattr(geoscaler.methods.learned, "cache_q", refuse)
+    monkeypatch.setattr(geoscaler.methods.learned, "Validation", refuse)
     mesh = demo_mesh(subdivisions=4, texture_size=64)
-    cached = []
+    handed = []
 
     class Watch(JobObserver):
         def views_cached(self, distance, views):
-            cached.append((distance, len(views)))
+            handed.append((distance, views))
 
     options = MethodOptions(device="cpu", steps=1, settings={"optimize": {"pool_views": 1}})
     comparison = compare_mesh(
@@ -286,22 +287,23 @@ def test_learned_methods_validate_on_the_views_compare_scores_on(monkeypatch):
     )
     assert [row["method"] for row in comparison.rows] == ["bicubic", "direct"]
     assert comparison.outputs["direct", 4].details["steps"] == 1
-    assert cached == [(2.4, 1)]  # Q, once, with the renderer's one view
+    ((distance, q),) = handed  # Q, once: validated on, then scored on
+    assert distance == 2.4 and len(q) == len(q.cameras) == 1  # the renderer's one view
 
 
-def test_caching_the_shared_validation_views_counts_against_a_learned_methods_budget():
-    budgets = []
+def test_a_learned_method_gets_the_validation_uncached_and_the_whole_budget():
+    contexts = []
 
     def learned(mesh, scale, options, context):
-        budgets.append(context.time_budget)
+        contexts.append((context, context.validation.num_views))
         return get_method("bicubic").run(mesh, scale, options, context)
 
     mesh = demo_mesh(subdivisions=4, texture_size=64)
     options = MethodOptions(device="cpu", time_budget=30.0)
+    renderer = small_renderer(mesh)
     with registered("learned", learned, learned=True):
-        comparison = compare_mesh(
-            mesh, [4], ["learned"], options=options, renderer=small_renderer(mesh)
-        )
-    # the method's seconds include Q's caching, which is what its budget was reduced by
-    assert len(budgets) == 1
-    assert 0 < 30.0 - budgets[0] <= comparison.outputs["learned", 4].seconds
+        compare_mesh(mesh, [4], ["learned", "lanczos"], options=options, renderer=renderer)
+    ((context, cached),) = contexts
+    assert context.time_budget == 30.0  # compare: the budget counts from the method's start
+    assert cached == 0  # its views are cached while it trains
+    assert set(context.validation.baselines) == {"lanczos", "bicubic"}

@@ -26,12 +26,14 @@ from geoscaler.protocol import Evaluation
 QUICK_VIEWS = (0, 31)
 QUICK_EVALUATION = Evaluation.quick(QUICK_VIEWS)
 # Two steps at the default learning rate (0.005 in sRGB units, after a 10-step warm-up) move no
-# texel by a whole 8-bit code; these make two steps visible in the written texture.
+# texel by a whole 8-bit code; these make two steps visible in the written texture, on enough
+# views that they gain at every validation distance (from two views, the steps sharpen Q's views
+# by 0.1 dB and lose 1 dB near and far: the floor ships the start).
 QUICK_OPTIMIZE = {
-    "pool_views": 2,
-    "views_per_step": 2,
+    "pool_views": 4,
+    "views_per_step": 4,
     "validate_every": 1,
-    "lr": 0.05,
+    "lr": 0.02,
     "warmup_steps": 1,
 }
 
@@ -117,7 +119,7 @@ def test_report_json_has_protocol_results_and_gain(direct_run, glb):
 def test_steps_stop_the_loop(direct_run):
     details = direct_run["report"]["details"]
     assert details["steps"] == 2 and details["stopped_by"] == "steps"
-    assert details["validation_views"] == len(QUICK_VIEWS)
+    assert details["validation_views"] == {"Q": 2, "near": 2, "far": 2}  # guards: no more than Q
 
 
 def test_the_input_is_never_modified(direct_run):

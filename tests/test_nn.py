@@ -39,7 +39,7 @@ from geoscaler.uvmaps import (
     uv_raster,
     vertex_materials,
 )
-from geoscaler.views import ViewCache, ViewSet
+from geoscaler.validation import Validation, validation_view_sets
 
 CPU = torch.device("cpu")
 
@@ -79,12 +79,10 @@ def small_mesh():
 def small_context(mesh: TexturedMesh, views: int) -> RunContext:
     """What a job hands the method, small: it trains on 128-pixel views (the protocol's: 512)
     and validates on the first ``views`` protocol views at 64 pixels (the protocol: 60 at 512)."""
-    validation = ViewSet(
-        Renderer(mesh, "cpu", Evaluation(image_size=64)), validation_cameras()[:views]
-    )
+    renderer = Renderer(mesh, "cpu", Evaluation(image_size=64, views=tuple(range(views))))
     return RunContext(
         renderer=small_renderer(mesh, device="cpu"),
-        validation=ViewCache(validation, output_sizes(mesh, 4), with_taps=True),
+        validation=Validation(validation_view_sets(renderer), output_sizes(mesh, 4)),
     )
 
 

@@ -11,33 +11,46 @@ from geoscaler.filters import lanczos, output_sizes, reference_textures
 from geoscaler.mesh import Material
 from geoscaler.methods import MethodOptions, RunContext, run_method
 from geoscaler.methods.direct import TexelModel
-from geoscaler.metrics import mean_metrics
 from geoscaler.optimize import (
     Controller,
     OptimizeConfig,
+    _Best,
     _learning_rate_factor,
     _time_spent,
-    fill_unseen,
     optimize,
 )
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
 from geoscaler.render import Renderer
 from geoscaler.texture import linear_to_srgb, linear_to_texture, texture_to_linear
-from geoscaler.views import ViewCache, ViewSet, cache_view_set
+from geoscaler.validation import Validation, validation_view_sets
+from geoscaler.views import ViewCache, ViewSet
 
 SCALE = 4
 
 
 @pytest.fixture(scope="module")
 def scene():
-    """The mesh, a 64-pixel renderer and validation views (every tenth protocol view) cached
-    with the taps of the 32 x 32 candidate."""
+    """The mesh, a 64-pixel renderer and its validation views (every tenth protocol view as
+    Q, two near and two far guards), all cached."""
     mesh = demo_mesh(subdivisions=6, texture_size=128)
-    renderer = Renderer(mesh, "cpu", Evaluation(image_size=64))
-    views = ViewSet(renderer, validation_cameras()[::10])
-    validation = ViewCache(views, output_sizes(mesh, SCALE), with_taps=True)
-    return mesh, renderer, validation
+    renderer = Renderer(mesh, "cpu", Evaluation(image_size=64, views=tuple(range(0, 60, 10))))
+    views = validation_view_sets(renderer, guard_views=2)
+    for view_set in views.values():
+        while view_set.cache_next():
+            pass
+    return mesh, renderer, views
+
+
+def fresh_validation(scene, baselines=None) -> Validation:
+    """A validation of the 32 x 32 output on the scene's views, not yet frozen."""
+    mesh, _, views = scene
+    return Validation(views, output_sizes(mesh, SCALE), baselines)
+
+
+def q_psnr(scene, texture: np.ndarray) -> float:
+    """PSNR-fg on the scene's Q of an 8-bit texture."""
+    return fresh_validation(scene).score([texture], sets=["Q"])["Q"]["psnr_fg"]
 
 
 def small_config(**overrides) -> OptimizeConfig:
@@ -58,27 +71,28 @@ def lanczos_model(mesh) -> TexelModel:
     return TexelModel([texture_to_linear(start)])
 
 
-def run(scene, **overrides):
-    mesh, renderer, validation = scene
+def run(scene, validation=None, **overrides):
+    mesh, renderer, _ = scene
     model = lanczos_model(mesh)
+    validation = fresh_validation(scene) if validation is None else validation
     return optimize(renderer, model, small_config(**overrides), validation=validation)
 
 
 def test_direct_beats_its_lanczos_start_within_a_few_dozen_steps(scene):
-    mesh, _, validation = scene
-    start = mean_metrics(validation.score([lanczos(reference_textures(mesh)[0], SCALE)]))
+    mesh, _, _ = scene
+    start = q_psnr(scene, lanczos(reference_textures(mesh)[0], SCALE))
     result = run(scene)
-    final = mean_metrics(validation.score([linear_to_texture(result.textures[0])]))
+    final = q_psnr(scene, linear_to_texture(result.textures[0]))
     assert result.steps == 30 and result.best_step == 30
-    assert final["psnr_fg"] > start["psnr_fg"] + 0.3
+    assert final > start + 0.3
 
 
 def test_the_best_state_is_never_worse_than_the_start(scene):
-    mesh, _, validation = scene
-    start = mean_metrics(validation.score([lanczos(reference_textures(mesh)[0], SCALE)]))
+    mesh, _, _ = scene
+    start = q_psnr(scene, lanczos(reference_textures(mesh)[0], SCALE))
     result = run(scene, steps=5, lr=0.5)  # far too large: the steps only hurt
     assert result.best_step == 0
-    assert result.best_psnr == pytest.approx(start["psnr_fg"], abs=0.05)
+    assert result.best_psnr == pytest.approx(start, abs=0.05)
 
 
 def test_texel_model_parameters_are_the_srgb_values_that_ship():
@@ -98,17 +112,17 @@ def test_texel_model_parameters_are_the_srgb_values_that_ship():
 
 
 def test_the_loop_trains_on_the_cameras_it_is_given(scene):
-    mesh, renderer, validation = scene
+    mesh, renderer, views = scene
     cached = []
-    optimize(
+    result = optimize(
         renderer,
         lanczos_model(mesh),
         small_config(steps=1),
         on_event=lambda event: cached.append(event.total) if event.phase == "caching" else None,
-        validation=validation,
-        training_cameras=validation.views.cameras[:3],
+        validation=fresh_validation(scene),
+        training_cameras=views["Q"].cameras[:3],
     )
-    assert cached == [3, 3, 3]
+    assert cached == [3, 3, 3] and result.training_views == 3
 
 
 def test_runs_are_deterministic_with_a_seed(scene):
@@ -126,7 +140,7 @@ def test_step_limit_and_time_budget_stop_the_loop(scene):
 
 
 def test_a_controller_stops_the_loop_from_outside(scene):
-    mesh, renderer, validation = scene
+    mesh, renderer, _ = scene
     controller = Controller()
     events = []
 
@@ -136,7 +150,7 @@ def test_a_controller_stops_the_loop_from_outside(scene):
             controller.stop()
 
     result = optimize(
-        renderer, lanczos_model(mesh), small_config(), validation, on_event, controller
+        renderer, lanczos_model(mesh), small_config(), fresh_validation(scene), on_event, controller
     )
     assert result.steps == 4 and result.stopped_by == "stopped"
     phases = [e.phase for e in events]
@@ -163,32 +177,11 @@ def test_pause_blocks_until_resumed():
     thread.join()
 
 
-def test_gutter_fill_keeps_seen_texels_and_fills_the_rest():
-    texture = torch.rand(6, 5, 3)
-    seen = torch.zeros(6, 5, dtype=torch.bool)
-    seen[1:3, 1:4] = True
-    filled = fill_unseen(texture, seen)
-    assert torch.equal(filled[seen], texture[seen])
-    assert torch.isfinite(filled).all()
-    seen_colours = texture[seen]
-    low, high = seen_colours.min(0).values, seen_colours.max(0).values
-    assert ((filled >= low - 1e-6) & (filled <= high + 1e-6)).all()  # averages of seen texels
-
-
-def test_a_single_seen_texel_colours_everything():
-    texture = torch.zeros(4, 4, 3)
-    texture[2, 1] = torch.tensor([0.2, 0.5, 0.9])
-    seen = torch.zeros(4, 4, dtype=torch.bool)
-    seen[2, 1] = True
-    filled = fill_unseen(texture, seen)
-    torch.testing.assert_close(filled, texture[2, 1].expand(4, 4, 3))
-
-
 def test_direct_method_returns_an_8bit_texture_of_the_target_size():
     mesh = demo_mesh(subdivisions=4, texture_size=64)
     options = MethodOptions(device="cpu", steps=2, settings={"optimize": {"pool_views": 2}})
     renderer = Renderer(mesh, "cpu", Evaluation(views=(0, 1)))
-    validation = cache_view_set(renderer, 2.4, output_sizes(mesh, SCALE))
+    validation = Validation(validation_view_sets(renderer, 1), output_sizes(mesh, SCALE))
     result = run_method("direct", mesh, SCALE, options, RunContext(renderer, validation))
     (texture,) = result.textures
     assert texture.dtype == np.uint8 and texture.shape == (16, 16, 3)
@@ -196,11 +189,11 @@ def test_direct_method_returns_an_8bit_texture_of_the_target_size():
 
 
 def test_cached_taps_render_exactly_what_the_renderer_renders(scene):
-    _, _, validation = scene
+    _, _, views = scene
     texture = torch.rand(32, 32, 3)
-    cached = ViewCache(validation.views, [(32, 32)], with_taps=True)
-    general = ViewCache(validation.views, [(32, 32)], with_taps=False)
-    for view in range(len(validation)):
+    cached = ViewCache(views["Q"], [(32, 32)], with_taps=True)
+    general = ViewCache(views["Q"], [(32, 32)], with_taps=False)
+    for view in range(len(cached)):
         torch.testing.assert_close(
             cached.render(view, [texture], None),
             general.render(view, [texture], None),
@@ -231,11 +224,60 @@ def test_cached_taps_handle_several_and_untextured_materials():
         )
 
 
-def test_a_time_budget_caps_the_training_pool(scene):
-    _, renderer, _ = scene
-    cameras = validation_cameras()[:10]
-    pool = ViewSet(renderer, cameras, deadline=0.0, min_views=3)  # deadline long past
-    assert len(pool) == 3 and len(pool.gbuffers) == 3 and pool.references.shape[0] == 3
+def uncached_validation(scene) -> Validation:
+    """A validation like :func:`fresh_validation` whose views are not cached yet."""
+    mesh, renderer, views = scene
+    fresh = {name: ViewSet(renderer, v.cameras, eager=False) for name, v in views.items()}
+    return Validation(fresh, output_sizes(mesh, SCALE))
+
+
+def test_views_are_cached_between_steps_by_count_not_by_time(scene):
+    # 4 training views before the first step, then 2 views after each step: validation views
+    # until they are as many as the training views, then the two in turn.
+    three = run(scene, uncached_validation(scene), steps=3)
+    assert three.training_views == 5  # steps 1-2: 4 validation views; step 3: one of each
+    six = run(scene, uncached_validation(scene), steps=6)
+    assert six.training_views == 8  # the validation views left are cached at the end:
+    assert six.validation_views == {"Q": 6, "near": 2, "far": 2}
+
+
+def test_a_spent_budget_validates_on_what_is_cached_and_ships_the_start(scene):
+    mesh, renderer, _ = scene
+    validation = uncached_validation(scene)
+    result = optimize(
+        renderer,
+        lanczos_model(mesh),
+        small_config(time_budget=1.0),
+        validation,
+        started_at=-1e9,  # the budget ran out long ago
+    )
+    assert result.steps == 0 and result.stopped_by == "time budget" and result.best_step == 0
+    assert result.validation_views == {"Q": 3, "near": 1, "far": 1}  # the least it validates on
+
+
+class _Floor:
+    """A stand-in validation whose floor is 30 dB far away (and nothing elsewhere)."""
+
+    def rank(self, scores):
+        return min(0.0, scores["far"] - 30.0), scores["Q"]
+
+
+def test_the_best_candidate_clears_the_floor_before_it_scores_on_q():
+    best = _Best(_Floor())
+    candidate = ([torch.zeros(2, 2, 3)], None)
+    assert best.offer({"Q": 31.0, "far": 30.5}, candidate, 0)  # the start clears
+    assert not best.offer({"Q": 35.0, "far": 29.0}, candidate, 10)  # sharper, worse far away
+    assert best.offer({"Q": 32.0, "far": 30.2}, candidate, 20)
+    assert (best.step, best.psnr, best.clears) == (20, 32.0, True)
+
+
+def test_without_a_candidate_that_clears_the_one_that_falls_least_below_is_kept():
+    best = _Best(_Floor())
+    candidate = ([torch.zeros(2, 2, 3)], None)
+    assert best.offer({"Q": 31.0, "far": 20.0}, candidate, 0)
+    assert best.offer({"Q": 30.0, "far": 21.0}, candidate, 10)
+    assert not best.offer({"Q": 33.0, "far": 20.5}, candidate, 20)
+    assert (best.step, best.clears) == (10, False)
 
 
 def test_learning_rate_warms_up_then_decays_with_the_steps_or_the_time_whichever_is_further():

@@ -11,6 +11,7 @@ from geoscaler.texture import (
     MipTexture,
     UVFootprint,
     build_mip_chain,
+    fill_gutters,
     linear_to_srgb,
     linear_to_texture,
     mip_sizes,
@@ -181,3 +182,24 @@ def test_srgb_conversions_are_differentiable():
     x = torch.tensor([0.001, 0.02, 0.3, 0.8], dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(srgb_to_linear, (x,))
     assert torch.autograd.gradcheck(linear_to_srgb, (x,))
+
+
+def test_gutter_fill_keeps_the_kept_texels_and_fills_the_rest():
+    texture = torch.rand(6, 5, 3)
+    keep = torch.zeros(6, 5, dtype=torch.bool)
+    keep[1:3, 1:4] = True
+    filled = fill_gutters(texture, keep)
+    assert torch.equal(filled[keep], texture[keep])
+    assert torch.isfinite(filled).all()
+    keep_colours = texture[keep]
+    low, high = keep_colours.min(0).values, keep_colours.max(0).values
+    assert ((filled >= low - 1e-6) & (filled <= high + 1e-6)).all()  # averages of keep texels
+
+
+def test_a_single_kept_texel_colours_everything():
+    texture = torch.zeros(4, 4, 3)
+    texture[2, 1] = torch.tensor([0.2, 0.5, 0.9])
+    keep = torch.zeros(4, 4, dtype=torch.bool)
+    keep[2, 1] = True
+    filled = fill_gutters(texture, keep)
+    torch.testing.assert_close(filled, texture[2, 1].expand(4, 4, 3))

@@ -1,5 +1,5 @@
 """What every learned method does around the optimisation loop, once: take the job's renderer
-and cached Q (or make them), build the loop's settings from the options, run
+and validation (or make them), build the loop's settings from the options, run
 :func:`geoscaler.optimize.optimize` under the time left, and return 8-bit textures with the
 loop's facts for the report."""
 
@@ -9,13 +9,13 @@ from collections.abc import Mapping
 from typing import Any
 
 from geoscaler.filters import output_sizes
+from geoscaler.losses import PerceptualTerm
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext
-from geoscaler.optimize import Model, OptimizeConfig, PerceptualTerm, optimize
-from geoscaler.protocol import VALIDATION_DISTANCE
+from geoscaler.optimize import Model, OptimizeConfig, optimize
 from geoscaler.render import Renderer
 from geoscaler.texture import linear_to_texture
-from geoscaler.views import ViewCache, cache_view_set
+from geoscaler.validation import Validation, validation_view_sets
 
 
 def method_renderer(mesh: TexturedMesh, options: MethodOptions, context: RunContext) -> Renderer:
@@ -58,7 +58,9 @@ def fit(
         perceptual: an extra loss term.
         details: the method's own facts for the report, listed before the loop's.
     """
-    validation = context.validation or cache_q(renderer, mesh, scale)
+    validation = context.validation
+    if validation is None:
+        validation = Validation(validation_view_sets(renderer), output_sizes(mesh, scale))
     result = optimize(
         renderer,
         model,
@@ -69,6 +71,7 @@ def fit(
         keeps_uvs=keeps_uvs,
         perceptual=perceptual,
         started_at=started,
+        reserve=context.reserve,
     )
     textures = [None if t is None else linear_to_texture(t) for t in result.textures]
     uvs = None if result.uvs is None else result.uvs.detach().cpu().numpy().astype("float32")
@@ -78,11 +81,12 @@ def fit(
         "steps": result.steps,
         "best_step": result.best_step,
         "validation_psnr_fg": result.best_psnr,
+        "validation_scores": result.scores,
+        "clears_floor": result.clears_floor,
+        "baseline_scores": result.baselines,
         "stopped_by": result.stopped_by,
+        "first_step_seconds": round(result.first_step_seconds, 3),
+        "training_views": result.training_views,
+        "validation_views": result.validation_views,
     }
     return MethodResult(textures, uvs, details=facts)
-
-
-def cache_q(renderer: Renderer, mesh: TexturedMesh, scale: int) -> ViewCache:
-    """The validation set Q with the taps of the method's output sizes (when no job gave it)."""
-    return cache_view_set(renderer, VALIDATION_DISTANCE, output_sizes(mesh, scale))

@@ -30,6 +30,7 @@ from PIL import Image
 
 from geoscaler.errors import GeoscalerError
 from geoscaler.filters import lanczos, reference_textures, target_size
+from geoscaler.losses import PerceptualTerm
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods.learned import fit, loop_config, method_renderer
 from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext, register
@@ -41,7 +42,6 @@ from geoscaler.nn.network import (
     parameter_count,
 )
 from geoscaler.nn.perceptual import perceptual_loss
-from geoscaler.optimize import PerceptualTerm
 from geoscaler.texture import texture_to_linear
 from geoscaler.uvmaps import (
     check_square,

@@ -23,7 +23,7 @@ from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import TexturedMesh
 from geoscaler.optimize import Controller, ProgressEvent
 from geoscaler.render import Renderer
-from geoscaler.views import ViewCache
+from geoscaler.validation import Validation
 
 
 @dataclass(frozen=True)
@@ -54,19 +54,21 @@ class RunContext:
     Attributes:
         renderer: the mesh's renderer, whose ``evaluation`` says the image size, supersampling
             and views (None: the method makes a protocol-1 one on ``options.device``).
-        validation: Q, cached with the texture taps of the output sizes (None: the method
-            caches it).
+        validation: the validation sets with the taps of the output sizes and the job's
+            baselines (None: the method makes its own, without baselines).
         controller: pauses or stops the method from another thread.
         on_event: receives the optimisation loop's progress events.
         time_budget: seconds the method may still spend: the job's budget less what the job
             spent before it (None: no limit).
+        reserve: seconds of ``time_budget`` the job needs after the method (its export).
     """
 
     renderer: Renderer | None = None
-    validation: ViewCache | None = None
+    validation: Validation | None = None
     controller: Controller | None = None
     on_event: Callable[[ProgressEvent], None] | None = None
     time_budget: float | None = None
+    reserve: float = 0.0
 
 
 @dataclass

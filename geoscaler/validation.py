@@ -1,0 +1,253 @@
+"""What a learned method validates on, and the floor its result must clear.
+
+Three view sets, each a :class:`~geoscaler.views.ViewCache` with the taps of the output sizes:
+
+- ``Q``: the protocol's validation set (the evaluation's views) in
+  :func:`~geoscaler.cameras.spread_order`, so that any prefix of it covers the sphere;
+- ``near`` and ``far``: cameras of the loop's own (:func:`guard_cameras`) at the protocol's
+  near and far distances, so that a texture is not sharpened for close views at the cost of
+  distant ones. The protocol's near and far sets are not used here: they stay for evaluation.
+
+The optimisation loop caches their views between its steps (:meth:`Validation.cache_next`).
+Under a time budget the sets are *frozen* at the views cached by then (:meth:`freeze`), so
+that every candidate is compared on the same views. The filters the job runs beside the method
+(its *baselines*) are scored on the frozen sets; per set the best of them is the *floor*, and
+candidates are ranked by how far they fall below it on their worst set, then by Q
+(:meth:`Validation.rank`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import torch
+
+from geoscaler.cameras import Camera, fibonacci_directions, spread_order, view_set_cameras
+from geoscaler.metrics import evaluate, mean_metrics, psnr_fg
+from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, VALIDATION_DISTANCE
+from geoscaler.render import Renderer
+from geoscaler.texture import texture_to_linear
+from geoscaler.views import ViewCache, ViewSet
+
+GUARD_VIEWS = 12
+"""Views of each guard set (near, far)."""
+MIN_FROZEN = {"Q": 3, "near": 1, "far": 1}
+"""Views a set keeps at least when frozen (fewer where it has fewer)."""
+SET_NAMES = ("Q", "near", "far")
+
+Scores = dict[str, float]
+"""Set name -> mean PSNR-fg (dB) over the set's frozen views."""
+
+
+def guard_cameras(distance: float, count: int = GUARD_VIEWS) -> list[Camera]:
+    """``count`` validation cameras at ``distance``: a Fibonacci sphere of ``count`` directions,
+    turned half a golden angle about the z axis so that none is a protocol view, in spread
+    order."""
+    directions = fibonacci_directions(count)
+    turn = math.pi * (3.0 - math.sqrt(5.0)) / 2
+    rotation = np.array(
+        [[math.cos(turn), -math.sin(turn), 0.0], [math.sin(turn), math.cos(turn), 0.0], [0, 0, 1]]
+    )
+    turned = directions @ rotation.T
+    return [Camera(tuple(turned[i]), float(distance)) for i in spread_order(count)]
+
+
+def validation_view_sets(renderer: Renderer, guard_views: int = GUARD_VIEWS) -> dict[str, ViewSet]:
+    """The three sets' views, none cached yet: Q (the views of ``renderer.evaluation``, in
+    spread order), near and far guards of ``guard_views`` each, but never more than Q has (a
+    quick evaluation's one view gets one guard at each distance). Views are shared by every
+    scale's :class:`Validation`."""
+    q = view_set_cameras(VALIDATION_DISTANCE, renderer.evaluation)
+    guard_views = min(guard_views, len(q))
+    cameras = {
+        "Q": [q[i] for i in spread_order(len(q))],
+        "near": guard_cameras(NEAR_DISTANCE, guard_views),
+        "far": guard_cameras(FAR_DISTANCE, guard_views),
+    }
+    return {name: ViewSet(renderer, cams, eager=False) for name, cams in cameras.items()}
+
+
+class Validation:
+    """The validation sets of one output size, the baselines and their floor.
+
+    Args:
+        views: set name -> its views (:func:`validation_view_sets`), in :data:`SET_NAMES`.
+        sizes: per material the output texture ``(h, w)`` (None: untextured).
+        baselines: filter name -> its 8-bit output textures, scored once the sets are frozen.
+        scorings_after: full-metric scorings of Q's frozen views the caller will run after
+            the method (a downsampling job's report: the result and each baseline); the loop
+            keeps time for them under a budget.
+
+    Attributes:
+        sets: set name -> a :class:`ViewCache` of its views with the taps of ``sizes``.
+        counts: set name -> frozen number of views (None until :meth:`freeze`).
+    """
+
+    def __init__(
+        self,
+        views: Mapping[str, ViewSet],
+        sizes: Sequence[tuple[int, int] | None],
+        baselines: Mapping[str, Sequence[np.ndarray | None]] | None = None,
+        scorings_after: int = 0,
+    ):
+        self.sets = {
+            name: ViewCache(view_set, sizes, with_taps=True) for name, view_set in views.items()
+        }
+        self.sizes = list(sizes)
+        self.baselines = dict(baselines or {})
+        self.scorings_after = scorings_after
+        self.counts: dict[str, int] | None = None
+        self._baseline_scores: dict[str, Scores] | None = None
+        self._view_seconds = 0.0  # the costliest view cached so far
+        self._render_seconds = 0.0  # a candidate's render in one view, measured once
+        self._metric_seconds = 0.0  # the protocol metrics of one view, measured once
+
+    @property
+    def frozen(self) -> bool:
+        return self.counts is not None
+
+    @property
+    def complete(self) -> bool:
+        """Every view of every set is cached."""
+        return all(cache.views.complete for cache in self.sets.values())
+
+    @property
+    def num_views(self) -> int:
+        """Views validated on: the frozen counts, or all that are cached."""
+        return sum(self.counts.values()) if self.counts else sum(map(len, self.sets.values()))
+
+    @property
+    def planned(self) -> int:
+        """Views of every set, cached or not."""
+        return sum(len(cache.views.cameras) for cache in self.sets.values())
+
+    def cache_next(self) -> bool:
+        """Cache one view, and its taps, in the set with the smallest share cached; False when
+        there is nothing left to cache (every set complete, or frozen)."""
+        if self.frozen:
+            return False
+        waiting = [name for name, cache in self.sets.items() if not cache.views.complete]
+        if not waiting:
+            return False
+        name = min(waiting, key=lambda n: len(self.sets[n]) / len(self.sets[n].views.cameras))
+        started = time.perf_counter()
+        cache = self.sets[name]
+        cache.views.cache_next()
+        cache.render(len(cache) - 1, self._probe_textures(), None)  # finds the view's taps
+        self._view_seconds = max(self._view_seconds, time.perf_counter() - started)
+        if not self._render_seconds:
+            self._measure(cache)
+        return True
+
+    def cache_all(self) -> None:
+        """Cache every view of every set (nothing once frozen)."""
+        while self.cache_next():
+            pass
+
+    def freeze(self) -> None:
+        """Validate on the views cached so far from now on (at least :data:`MIN_FROZEN`)."""
+        if self.frozen:
+            return
+        for name, cache in self.sets.items():
+            while len(cache) < MIN_FROZEN.get(name, 1) and cache.views.cache_next():
+                pass
+        self.counts = {name: len(cache) for name, cache in self.sets.items()}
+
+    @torch.no_grad()
+    def psnr(self, textures: Sequence[torch.Tensor | None], uvs: torch.Tensor | None) -> Scores:
+        """Mean PSNR-fg of a candidate per set over its frozen views.
+
+        Args:
+            textures: per material the ``(h, w, 3)`` linear texture as it ships (8-bit
+                quantised) or None.
+            uvs: ``(V, 2)`` UVs, or None for the mesh's own.
+        """
+        self.freeze()
+        scores = {}
+        for name, cache in self.sets.items():
+            values = []
+            for view in range(self.counts[name]):
+                reference, foreground = cache.views.reference(view)
+                image = cache.render(view, textures, uvs)
+                values.append(psnr_fg(image[None], reference[None], foreground[None]))
+            scores[name] = float(torch.cat(values).nanmean())  # nan: no foreground
+        return scores
+
+    def score(
+        self,
+        textures: Sequence[np.ndarray | None],
+        uvs: np.ndarray | None = None,
+        sets: Sequence[str] = SET_NAMES,
+    ) -> dict[str, dict[str, float]]:
+        """Set name -> mean protocol metrics of 8-bit textures (and UVs) over its frozen views,
+        for the ``sets`` named."""
+        self.freeze()
+        return {
+            name: mean_metrics(self.sets[name].score(textures, uvs, self.counts[name]))
+            for name in sets
+        }
+
+    def baseline_scores(self) -> dict[str, Scores]:
+        """Baseline name -> its :meth:`psnr` (scored once, after the sets are frozen)."""
+        if self._baseline_scores is None:
+            device = next(iter(self.sets.values())).renderer.device
+            self._baseline_scores = {
+                name: self.psnr(
+                    [
+                        None if t is None else texture_to_linear(t[..., :3], device)
+                        for t in textures
+                    ],
+                    None,
+                )
+                for name, textures in self.baselines.items()
+            }
+        return self._baseline_scores
+
+    def floor(self) -> Scores:
+        """Set name -> the best baseline's PSNR-fg there (empty without baselines)."""
+        scores = self.baseline_scores()
+        return {name: max(s[name] for s in scores.values()) for name in self.sets} if scores else {}
+
+    def shortfall(self, scores: Scores) -> float:
+        """How far (dB, <= 0) a candidate falls below the floor on its worst set: 0 when it is
+        no worse than the best baseline on every set (a set with nothing in view, nan, says
+        nothing)."""
+        gaps = [scores[name] - level for name, level in self.floor().items() if level == level]
+        return min([0.0, *(gap for gap in gaps if gap == gap)])
+
+    def rank(self, scores: Scores) -> tuple[float, float]:
+        """The order candidates are chosen in: the smallest :meth:`shortfall`, then the best
+        PSNR-fg on Q. A candidate that clears the floor outranks every one that does not."""
+        return self.shortfall(scores), scores["Q"]
+
+    def seconds_needed(self, validations: int, caching: bool) -> float:
+        """An estimate of the seconds to finish: ``validations`` candidate validations, the
+        baselines' if not yet scored, the caller's scorings after, and (``caching``) the views
+        :meth:`freeze` must still cache; 0 before any view is cached."""
+        if self._baseline_scores is None:
+            validations += len(self.baselines)
+        q_views = self.counts["Q"] if self.counts else len(self.sets["Q"])
+        seconds = self.num_views * validations * self._render_seconds
+        seconds += q_views * self.scorings_after * (self._render_seconds + self._metric_seconds)
+        if caching and not self.frozen:
+            missing = (max(MIN_FROZEN.get(n, 1) - len(c), 0) for n, c in self.sets.items())
+            seconds += self._view_seconds * sum(missing)
+        return seconds
+
+    def _probe_textures(self) -> list[torch.Tensor | None]:
+        device = next(iter(self.sets.values())).renderer.device
+        return [None if s is None else torch.zeros(*s, 3, device=device) for s in self.sizes]
+
+    @torch.no_grad()
+    def _measure(self, cache: ViewCache) -> None:
+        """Time a candidate's render and the protocol metrics in a cached view, once."""
+        started = time.perf_counter()
+        image = cache.render(0, self._probe_textures(), None)
+        self._render_seconds = time.perf_counter() - started
+        reference, foreground = cache.views.reference(0)
+        started = time.perf_counter()
+        evaluate(image[None], reference[None], foreground[None])
+        self._metric_seconds = time.perf_counter() - started
