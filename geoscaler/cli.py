@@ -133,7 +133,18 @@ def cmd_downsample(args: argparse.Namespace) -> None:
         settings,
         default_budget=DEFAULT_TIME_BUDGET,
     )
-    job = prepare(args.mesh, args.output, args.scale, method, options, args.force, args.report)
+    from geoscaler.console import process_started_at
+
+    job = prepare(
+        args.mesh,
+        args.output,
+        args.scale,
+        method,
+        options,
+        args.force,
+        args.report,
+        started_at=process_started_at(),  # the budget is the whole command's wall clock
+    )
     downsample_and_report(job, args.evaluation)
 
 
@@ -158,7 +169,7 @@ def downsample_and_report(
     start = time.perf_counter()
     controller = Controller()
     renderer = Renderer(job.mesh, job.options.device, evaluation)
-    bar = DownsampleProgress(progress, len(evaluation.view_indices), is_learned(job.method))
+    bar = DownsampleProgress(progress, is_learned(job.method))
     try:
         with stop_on_interrupt(controller, bar.write):
             done, written = run_job(job, renderer, bar, controller)
@@ -211,6 +222,7 @@ def demo(
     by default. Returns the report.
     """
     from geoscaler.arguments import method_options
+    from geoscaler.console import process_started_at
     from geoscaler.io import check_output, prepare_folder, save_mesh, save_png
     from geoscaler.job import prepare
     from geoscaler.procedural import demo_mesh
@@ -239,6 +251,7 @@ def demo(
         options,
         force=True,
         report=out_dir / f"{stem}.json",
+        started_at=process_started_at(),
     )
     done, document = downsample_and_report(job, evaluation, progress=progress, say=say)
     sheet = comparison_picture(

@@ -4,46 +4,60 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import signal
 import sys
 import threading
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 from geoscaler.job import JobObserver
 from geoscaler.optimize import Controller, ProgressEvent
 
 
-class DownsampleProgress(JobObserver):
-    """One tqdm bar for a downsampling job: view caching, then optimisation steps, then scoring.
+def process_started_at() -> float:
+    """The ``time.perf_counter()`` of this process's start, so that a command's time budget
+    covers the interpreter's start and the imports too (Linux, from ``/proc``, to 10 ms;
+    elsewhere: now)."""
+    try:
+        ticks = os.sysconf("SC_CLK_TCK")
+        fields = Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()
+        started = int(fields[19]) / ticks  # field 22, starttime, in ticks since boot
+        uptime = float(Path("/proc/uptime").read_text().split()[0])
+        return time.perf_counter() - max(uptime - started, 0.0)
+    except (OSError, ValueError, IndexError, AttributeError):
+        return time.perf_counter()
 
-    Caching counts the views of Q, then the method's training views. Steps show the loss, the
-    best validation PSNR-fg and the time left: the step rate's estimate, or the time budget's
-    end when that comes first. Scoring is shown once the method is done (the filters beside a
-    learned method are scored before it starts, within its caching phase).
+
+class DownsampleProgress(JobObserver):
+    """One tqdm bar for a downsampling job, named by phase: the views the first step needs,
+    the optimisation steps (with the views still being cached alongside), the scoring of the
+    report's rows on the validation views, writing the files.
+
+    Steps show the loss, the best validation PSNR-fg and the time left: the step rate's
+    estimate, or the time budget's end when that comes first.
 
     Args:
         enabled: False: draw nothing.
-        views: the views of Q.
-        learned: the job's method is learned (steps follow the caching).
+        learned: the job's method is learned (steps come before the scoring).
     """
 
     FORMAT = "{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]"
 
-    def __init__(self, enabled: bool = True, views: int = 0, learned: bool = True):
+    def __init__(self, enabled: bool = True, learned: bool = True):
         from tqdm import tqdm
 
         self.bar = tqdm(
-            total=views,
-            desc="caching views",
+            total=1,
+            desc="loading",
             unit="view",
             bar_format=self.FORMAT,
             disable=not enabled,
             leave=False,
             dynamic_ncols=True,
         )
-        self.views = views
         self.deadline: float | None = None
         self.phase = "caching"
         self.learned = learned
@@ -54,50 +68,40 @@ class DownsampleProgress(JobObserver):
         self.bar.write(text, file=sys.stderr)
 
     def stage(self, what: str, done: int, total: int) -> None:
-        """Counts the views of Q while they are cached, then the scored outputs."""
-        if what == "caching Q":
+        """The job's scoring of the rows, and the writing of the files."""
+        if what.startswith("scoring") and (self.phase == "done" or not self.learned):
+            self._phase("scoring", "scoring on the validation views", total)
             self.bar.n = done
             self.bar.refresh()
-        elif what.startswith("scoring") and (self.phase == "done" or not self.learned):
-            self.scoring(done, total)
+        elif what == "writing":
+            self._phase("writing", "writing the files", 1)
 
-    def scoring(self, done: int, total: int) -> None:
-        bar = self.bar
-        if self.phase != "scoring":
-            self.phase = "scoring"
-            bar.set_description_str("scoring on Q", refresh=False)
-            bar.set_postfix_str("", refresh=False)
-            bar.unit = "step"
-            bar.reset(total=total)
-        bar.n = done
-        bar.refresh()
+    def _phase(self, phase: str, description: str, total: int) -> None:
+        if self.phase != phase:
+            self.phase = phase
+            self.bar.set_description_str(description, refresh=False)
+            self.bar.set_postfix_str("", refresh=False)
+            self.bar.reset(total=total)
 
     def method_started(self, name: str, scale: int, time_budget: float | None) -> None:
         """A learned method starts now; its budget, if any, ends ``time_budget`` s later."""
-        if time_budget is None:
-            return
-        self.deadline = time.perf_counter() + time_budget
-        self.bar.set_postfix_str("method set-up", refresh=True)
+        if time_budget is not None:
+            self.deadline = time.perf_counter() + time_budget
 
     def on_event(self, event: ProgressEvent) -> None:
         """Receives the method's :class:`ProgressEvent` reports."""
         bar = self.bar
         if event.phase == "caching":
-            bar.total = self.views + event.total
-            bar.n = self.views + event.done
-            if event.done == event.total:
-                bar.set_postfix_str("texture taps and first validation", refresh=False)
+            bar.set_description_str("caching the first views", refresh=False)
+            bar.total, bar.n = event.total, event.done
             bar.refresh()
             return
         if event.phase == "done":
             self.phase = "done"
             return
         if self.phase == "caching":
-            self.phase = "steps"
-            bar.set_description_str("optimising", refresh=False)
-            bar.set_postfix_str("", refresh=False)
+            self._phase("steps", "optimising", event.total_steps)
             bar.unit = "step"
-            bar.reset(total=event.total_steps)
             self.first_step = (time.perf_counter(), event.step)
         bar.n = event.step
         postfix = []
@@ -105,6 +109,8 @@ class DownsampleProgress(JobObserver):
             postfix.append(f"loss {event.loss:.3g}")
         if math.isfinite(event.best_psnr):
             postfix.append(f"best PSNR-fg {event.best_psnr:.2f} dB")
+        if event.done < event.total:
+            postfix.append(f"views {event.done}/{event.total}")
         left = self.time_left(event)
         if left is not None:
             postfix.append(f"left {_clock(left)}")

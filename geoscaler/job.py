@@ -36,7 +36,7 @@ from geoscaler.io import (
     prepare_folder,
     save_mesh,
 )
-from geoscaler.mesh import TexturedMesh
+from geoscaler.mesh import TexturedMesh, check_geometry
 from geoscaler.methods import MethodOptions, MethodResult, RunContext, is_learned, run_method
 from geoscaler.optimize import Controller, ProgressEvent
 from geoscaler.protocol import GAIN_REFERENCE, VALIDATION_DISTANCE
@@ -178,6 +178,7 @@ def compare_mesh(
         GeoscalerError: an unknown method, a bad scale or distance, a scale too large for a
             texture, or a method's own error.
     """
+    check_geometry(mesh, mesh.source_path or "the mesh")
     scales = check_scales(scales)
     distances = [VALIDATION_DISTANCE] if rows_on == "validation" else check_distances(distances)
     listed = [check_method(name) for name in methods]
@@ -212,7 +213,11 @@ def compare_mesh(
             context = RunContext(
                 renderer, validation, controller, observer.on_event, budget, reserve
             )
+            method_start = time.perf_counter()
             result = _run(mesh, scale, name, options, renderer, context, budget, observer)
+            if started_at is not None and "first_step_seconds" in result.details:
+                first = method_start - started_at + result.details["first_step_seconds"]
+                result.details["first_step_after_start"] = round(first, 3)
             outputs[name] = no_worse_than_filters(name, result, validation, outputs)
         if rows_on == "validation":
             _cache_for_rows(validation, options.time_budget, started_at, reserve)
@@ -386,8 +391,8 @@ class Job:
         force: replace existing outputs.
         report: the JSON report to write, or None.
         sizes: per material the output texture size ``(h, w)`` (None: untextured).
-        started_at: the ``time.perf_counter()`` when the job was prepared: its time budget
-            counts from there (loading the mesh included).
+        started_at: the ``time.perf_counter()`` its time budget counts from (the command's
+            start: loading the mesh included).
     """
 
     mesh_path: Path
@@ -436,15 +441,19 @@ def prepare(
     options: MethodOptions,
     force: bool = False,
     report: str | Path | None = None,
+    started_at: float | None = None,
 ) -> Job:
     """Check everything that can be checked, load the mesh, and return the :class:`Job`.
+
+    ``started_at``: the ``time.perf_counter()`` the job's time budget counts from (default:
+    now; the CLI passes its process's start).
 
     Raises:
         GeoscalerError: a bad scale or method, an output name, folder or suffix; an output
             that is an input file (even with ``force``) or exists without ``force``; an
             unreadable mesh; a scale larger than a texture.
     """
-    started_at = time.perf_counter()
+    started_at = time.perf_counter() if started_at is None else started_at
     mesh_path = Path(mesh_path)
     scale = check_scale(scale)
     method = check_method(method)
@@ -571,5 +580,6 @@ def run_job(
         job.started_at,
         EXPORT_RESERVE,
     )
+    (observer or JobObserver()).stage("writing", 0, 1)
     written = export(job.mesh, done.result, job.output, job.force)
     return done, written

@@ -332,14 +332,9 @@ squared in a 512 x 512 view at the validation distance, so nothing of the textur
 def check_geometry(mesh: TexturedMesh, what: str) -> None:
     """Raise ``GeoscalerError`` unless the mesh can be rendered and its texture seen.
 
-    The one geometry check of the project, made where a mesh is loaded: the vertices
-    (:func:`check_vertices`) and the textured faces (:func:`check_visible`).
-
-    Parameters
-    ----------
-    mesh : TexturedMesh
-    what : str
-        The start of each message (the mesh file's name).
+    The one geometry check of the project, made where a mesh is loaded and where a job starts
+    (a mesh made in code is not loaded): the vertices (:func:`check_vertices`) and the
+    textured faces (:func:`check_visible`). ``what`` starts each message (the file's name).
     """
     check_vertices(mesh.positions, mesh.uvs, what)
     check_visible(mesh, what)

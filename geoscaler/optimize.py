@@ -49,9 +49,6 @@ growing and the validation sets freeze at what is cached."""
 CACHED_PER_STEP = 2
 """Views cached after each step while some are missing: a count, not a time share, so that a
 run without a budget is the same on every machine."""
-EARLY_POOL = 16
-"""Training views cached in turn with validation views (the rest of the pool comes after the
-validation's)."""
 
 
 class Model(Protocol):
@@ -272,9 +269,9 @@ class _Caching:
     """Caches the training pool and the validation views between steps.
 
     Before the first step :meth:`until_trainable` caches ``views_per_step`` training views.
-    After each step :meth:`after_step` caches :data:`CACHED_PER_STEP` more: training and
-    validation views in turn until the pool has :data:`EARLY_POOL`, then the validation views,
-    then the rest of the pool; the validation freezes once complete. Under a budget, once
+    After each step :meth:`after_step` caches :data:`CACHED_PER_STEP` more, training and
+    validation views in turn (whichever has fewer) until one is complete, then the other; the
+    validation freezes once complete. Under a budget, once
     :data:`CACHING_SHARE` of it is spent, the pool stops growing and the validation freezes at
     what is cached.
     """
@@ -307,9 +304,7 @@ class _Caching:
 
     def _cache_one(self) -> bool:
         """Cache the next view due; False when nothing is left to cache."""
-        pool_first = self.validation.frozen or (
-            len(self.pool) < EARLY_POOL and len(self.pool) <= self.validation.num_views
-        )
+        pool_first = self.validation.frozen or len(self.pool) <= self.validation.num_views
         if pool_first:
             return self._cache_pool_view() or self.validation.cache_next()
         return self.validation.cache_next() or self._cache_pool_view()

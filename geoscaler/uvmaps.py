@@ -1,7 +1,7 @@
 """UV-space views of a mesh: chart structure, how much of the texture the charts use, and what
 the GeoScaler network reads of the mesh besides its texture.
 
-* Charts and coverage: UV-connected faces, and the share of texels the charts cover.
+* Charts: UV-connected faces.
 * Geometry maps: the normalised 3D position and normal of the surface point under every texel
   centre, rasterised into UV space, so convolutions over the texture see the geometry.
 * The vertex graph: the mesh's 3D points (vertices welded across UV seams) joined by the edges
@@ -76,12 +76,6 @@ def rasterize_uv(mesh: TexturedMesh, resolution: int, material: int | None = Non
     ).reshape(-1, 4)
     corners = torch.arange(len(clip)).view(-1, 3)
     return rasterize(torch.from_numpy(clip), corners, resolution)
-
-
-def uv_coverage(mesh: TexturedMesh, material: int = 0, resolution: int = 512) -> float:
-    """Fraction of the texture's area covered by at least one face of ``material``."""
-    gbuffer = rasterize_uv(mesh, resolution, material)
-    return gbuffer.num_samples / resolution**2
 
 
 # Channels of the network input: sRGB texture, position, normal, coverage mask.

@@ -295,3 +295,17 @@ def test_the_schedule_spends_the_time_left_after_caching():
     assert _time_spent(130.0, 100.0, 120.0, config) == pytest.approx(0.25)
     assert _time_spent(161.0, 100.0, 170.0, config) == 1.0  # caching used the whole budget
     assert _time_spent(130.0, 100.0, 120.0, OptimizeConfig()) == 0.0
+
+
+class _Costly(Validation):
+    """A validation whose remaining work (validations owed, scorings after) takes 1000 s."""
+
+    def seconds_needed(self, validations, caching):
+        return 1000.0
+
+
+def test_the_loop_stops_when_what_must_follow_it_would_overrun_the_budget(scene):
+    mesh, renderer, views = scene
+    validation = _Costly(views, output_sizes(mesh, SCALE))
+    result = optimize(renderer, lanczos_model(mesh), small_config(time_budget=600.0), validation)
+    assert result.steps == 0 and result.stopped_by == "time budget" and result.best_step == 0

@@ -1,0 +1,100 @@
+"""The validation sets a learned method is chosen on, the floor of the filters, and the budget's
+account of what validation still costs."""
+
+import math
+
+import numpy as np
+import pytest
+
+from geoscaler.cameras import fibonacci_directions, spread_order
+from geoscaler.filters import bicubic, lanczos, output_sizes, reference_textures
+from geoscaler.procedural import demo_mesh
+from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, Evaluation
+from geoscaler.render import Renderer
+from geoscaler.validation import GUARD_VIEWS, Validation, guard_cameras, validation_view_sets
+
+
+def test_spread_order_is_a_permutation_whose_prefixes_span_the_sphere():
+    order = spread_order(60)
+    assert sorted(order) == list(range(60))
+    assert order[:4] == [0, 23, 46, 9]  # steps of 23, coprime to 60: top, middle, bottom...
+    heights = fibonacci_directions(60)[order[:6], 2]
+    assert heights.max() > 0.6 and heights.min() < -0.5
+    assert spread_order(1) == [0] and sorted(spread_order(12)) == list(range(12))
+
+
+def test_guards_are_cameras_of_their_own_at_the_near_and_far_distances():
+    protocol = fibonacci_directions(60)
+    for distance in (NEAR_DISTANCE, FAR_DISTANCE):
+        cameras = guard_cameras(distance)
+        assert len(cameras) == GUARD_VIEWS and {c.distance for c in cameras} == {distance}
+        directions = np.array([c.direction for c in cameras])
+        np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1.0, atol=1e-12)
+        closest = (directions @ protocol.T).max(axis=1)
+        assert closest.max() < 0.9999  # none is a protocol view
+
+
+def test_guards_never_outnumber_q():
+    mesh = demo_mesh(subdivisions=3, texture_size=32)
+    quick = validation_view_sets(Renderer(mesh, "cpu", Evaluation.quick((0, 7))))
+    assert {name: len(v.cameras) for name, v in quick.items()} == {"Q": 2, "near": 2, "far": 2}
+    full = validation_view_sets(Renderer(mesh, "cpu"))
+    assert {name: len(v.cameras) for name, v in full.items()} == {"Q": 60, "near": 12, "far": 12}
+    assert [full["Q"].cameras[i].direction for i in (0, 1)] == [
+        tuple(fibonacci_directions(60)[i]) for i in (0, 23)
+    ]
+
+
+@pytest.fixture(scope="module")
+def small():
+    """The demo mesh at 4x, 32-pixel views: 6 views of Q, 2 near and 2 far guards, uncached."""
+    mesh = demo_mesh(subdivisions=4, texture_size=64)
+    renderer = Renderer(mesh, "cpu", Evaluation(image_size=32, views=tuple(range(0, 60, 10))))
+    return mesh, renderer
+
+
+def _validation(small, **kwargs) -> Validation:
+    mesh, renderer = small
+    return Validation(validation_view_sets(renderer, 2), output_sizes(mesh, 4), **kwargs)
+
+
+def test_views_are_cached_where_the_smallest_share_is_and_frozen_at_least_at_the_minimum(small):
+    validation = _validation(small)
+    assert validation.num_views == 0 and validation.planned == 10
+    validation.cache_next()
+    assert [len(c) for c in validation.sets.values()] == [1, 0, 0]
+    validation.cache_next()
+    validation.cache_next()
+    assert [len(c) for c in validation.sets.values()] == [1, 1, 1]
+    validation.freeze()  # Q keeps 3 at least
+    assert validation.counts == {"Q": 3, "near": 1, "far": 1} and validation.num_views == 5
+    assert not validation.cache_next() and validation.counts["Q"] == 3
+
+
+def test_the_floor_is_the_best_filter_on_each_set_and_the_rank_puts_clearing_it_first(small):
+    mesh, _ = small
+    (original,) = reference_textures(mesh)
+    filters = {"bicubic": [bicubic(original, 4)], "lanczos": [lanczos(original, 4)]}
+    validation = _validation(small, baselines=filters)
+    validation.cache_all()
+    scores = validation.baseline_scores()
+    floor = validation.floor()
+    assert floor == {s: max(scores["bicubic"][s], scores["lanczos"][s]) for s in floor}
+    assert validation.shortfall(floor) == 0.0
+    below = {**floor, "far": floor["far"] - 0.25, "Q": floor["Q"] + 2.0}
+    assert validation.shortfall(below) == pytest.approx(-0.25)
+    assert validation.rank(floor) > validation.rank(below)  # no worse anywhere beats sharper Q
+    unseen = {**below, "far": math.nan}  # nothing in view: says nothing
+    assert validation.shortfall(unseen) == 0.0
+
+
+def test_the_budget_counts_the_validations_owed_in_views(small):
+    validation = _validation(small, baselines={"lanczos": [None]}, scorings_after=2)
+    assert validation.seconds_needed(1, caching=True) == 0.0  # nothing measured yet
+    validation.cache_next()
+    # What was measured on the first view, set to round figures to check the arithmetic:
+    validation._render_seconds, validation._metric_seconds, validation._view_seconds = 1, 3, 10
+    # 1 view now; 1 own validation + 1 baseline's = 2 renders of it; 2 scorings after on Q's
+    # 1 view at 1 + 3; while not frozen, freezing must still cache 2 + 1 + 1 views.
+    assert validation.seconds_needed(1, caching=False) == 1 * 2 * 1 + 1 * 2 * 4
+    assert validation.seconds_needed(1, caching=True) == 10 + 4 * 10
