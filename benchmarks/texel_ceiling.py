@@ -36,6 +36,7 @@ from geoscaler.methods.direct import lanczos_texel_model
 from geoscaler.optimize import OptimizeConfig, optimize
 from geoscaler.render import Renderer, resolve_device
 from geoscaler.texture import linear_to_texture
+from geoscaler.validation import Validation
 from geoscaler.views import ViewCache, ViewSet
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -54,7 +55,8 @@ def ceiling_row(path: Path, scale: int, distance: float, steps: int, lr: float, 
     start = time.perf_counter()
     config = OptimizeConfig(steps=steps, lr=lr, ssim_weight=0.0, validate_every=steps)
     model = lanczos_texel_model(mesh, scale, renderer)
-    result = optimize(renderer, model, config, validation=views, training_cameras=cameras)
+    validation = Validation({"Q": views.views}, views.sizes)  # Q alone: no floor, no guards
+    result = optimize(renderer, model, config, validation, training_cameras=cameras)
     textures = [None if t is None else linear_to_texture(t) for t in result.textures]
     psnr["ceiling"] = float(views.score(textures)["psnr_fg"].mean())
     return {

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -541,6 +542,10 @@ def main(
     fewer or smaller views, and overrides of the learned methods' loop settings. The command
     line itself always runs protocol 1 with each method's own settings.
     """
+    # Idle OpenMP threads sleep instead of spinning: beside another CPU-bound process, spinning
+    # threads wait for each other at every parallel region (README, "Busy machines"). Only
+    # takes effect before torch is first imported, as it is by the commands below.
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     args = build_parser().parse_args(argv)
     args.evaluation, args.optimize = evaluation, optimize
     try:

@@ -180,14 +180,14 @@ class Validation:
         self,
         textures: Sequence[np.ndarray | None],
         uvs: np.ndarray | None = None,
-        sets: Sequence[str] = SET_NAMES,
+        sets: Sequence[str] | None = None,
     ) -> dict[str, dict[str, float]]:
         """Set name -> mean protocol metrics of 8-bit textures (and UVs) over its frozen views,
-        for the ``sets`` named."""
+        for the ``sets`` named (all by default)."""
         self.freeze()
         return {
             name: mean_metrics(self.sets[name].score(textures, uvs, self.counts[name]))
-            for name in sets
+            for name in (self.sets if sets is None else sets)
         }
 
     def baseline_scores(self) -> dict[str, Scores]:

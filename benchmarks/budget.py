@@ -1,0 +1,200 @@
+"""The main job under its time budget, as a user runs it: on an idle machine and beside a busy one.
+
+For every mesh, scale, budget and load this runs ``geoscaler downsample MESH --scale S
+--time-budget B -o OUT.glb --report R.json`` in a new process, timed from outside (``busy``: a
+CPU-bound busy loop, started here, runs beside it). Then, with the machine quiet again, it
+scores every written file, bicubic and Lanczos on all views of the protocol's sets (Q, and near
+and far with ``--sets``), as PROTOCOL.md defines them: not the job's own validation views.
+
+Columns: seconds from the command's start to its first optimisation step (from its report),
+steps, wall seconds, what shipped, the gain over bicubic per set, the share of the texel
+ceiling's gain on Q (``--ceiling``: JSON rows of ``benchmarks/texel_ceiling.py``), and whether
+the file is below the best filter on any set.
+
+Usage:
+    python benchmarks/budget.py [PATH ...] [--scale 4 8] [--budget 15 30 60]
+        [--load idle busy] [--sets 2.4 1.5 4.0] [--ceiling CEILING.json ...] [--out DIR]
+
+PATH: mesh files or folders (default: ../shared/data). Writes ``budget.json`` and
+``budget.md`` into ``--out`` (default: /tmp/geoscaler_budget).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from geoscaler.bench import find_meshes
+from geoscaler.cameras import view_set_cameras
+from geoscaler.filters import bicubic, lanczos, output_sizes, reference_textures
+from geoscaler.io import load_mesh
+from geoscaler.metrics import mean_metrics
+from geoscaler.protocol import PROTOCOL_EVALUATION
+from geoscaler.render import Renderer
+from geoscaler.views import ViewCache, ViewSet
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+BUSY_LOOP = "while True: pass"
+
+
+def run_downsample(mesh: Path, scale: int, budget: float, busy: bool, out: Path) -> dict:
+    """One ``geoscaler downsample`` as a user runs it; its report's facts and the wall time."""
+    output, report = out / "out.glb", out / "report.json"
+    command = [sys.executable, "-m", "geoscaler.cli", "downsample", str(mesh), "--scale",
+               str(scale), "--time-budget", str(budget), "-o", str(output), "--report",
+               str(report), "--force"]  # fmt: skip
+    neighbour = subprocess.Popen([sys.executable, "-c", BUSY_LOOP]) if busy else None
+    try:
+        started = time.perf_counter()
+        done = subprocess.run(command, capture_output=True, text=True, env=os.environ)
+        wall = time.perf_counter() - started
+    finally:
+        if neighbour is not None:
+            neighbour.kill()
+            neighbour.wait()
+    if done.returncode != 0:
+        raise RuntimeError(f"{mesh} x{scale} {budget}s: {done.stderr.strip()[-500:]}")
+    details = json.loads(report.read_text())["details"]
+    return {
+        "wall_s": round(wall, 2),
+        "first_step_s": details.get("first_step_after_start"),
+        "steps": details.get("steps"),
+        "shipped": details.get("shipped"),
+        "training_views": details.get("training_views"),
+        "validation_views": details.get("validation_views"),
+        "textures": load_mesh(output).materials,
+    }
+
+
+def score_runs(mesh_path: Path, scale: int, distances: list[float], runs: list[dict]) -> dict:
+    """PSNR-fg of bicubic and Lanczos per distance; each run gets its own ``psnr`` per distance."""
+    mesh = load_mesh(mesh_path)
+    renderer = Renderer(mesh, "cpu")
+    sizes = output_sizes(mesh, scale)
+    originals = reference_textures(mesh)
+    filters = {
+        name: [None if t is None else f(t, scale) for t in originals]
+        for name, f in (("bicubic", bicubic), ("lanczos", lanczos))
+    }
+    filter_psnr: dict[str, dict[float, float]] = {name: {} for name in filters}
+    for run in runs:
+        run["psnr"] = {}
+    for distance in distances:
+        views = ViewSet(renderer, view_set_cameras(distance, PROTOCOL_EVALUATION))
+        cache = ViewCache(views, sizes, with_taps=True)
+        for name, textures in filters.items():
+            filter_psnr[name][distance] = mean_metrics(cache.score(textures))["psnr_fg"]
+        for run in runs:
+            shipped = [m.base_color_texture for m in run["textures"]]
+            textures = [None if s is None else t for s, t in zip(sizes, shipped, strict=True)]
+            run["psnr"][distance] = mean_metrics(cache.score(textures))["psnr_fg"]
+        del cache, views  # the next set's caches replace these
+    return filter_psnr
+
+
+def ceilings(paths: list[str]) -> dict[tuple[str, int], float]:
+    """(mesh folder, scale) -> the texel ceiling's gain on Q, from texel_ceiling.py's JSON."""
+    found = {}
+    for path in paths:
+        for row in json.loads(Path(path).read_text()):
+            found[row["mesh"], row["scale"]] = row["ceiling_gain"]
+    return found
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("paths", nargs="*", default=[str(DATA)])
+    parser.add_argument("--scale", type=int, nargs="+", default=[4, 8])
+    parser.add_argument("--budget", type=float, nargs="+", default=[15.0, 30.0, 60.0])
+    parser.add_argument("--load", nargs="+", choices=["idle", "busy"], default=["idle", "busy"])
+    parser.add_argument("--sets", type=float, nargs="+", default=[2.4])
+    parser.add_argument("--ceiling", nargs="*", default=[])
+    parser.add_argument("--out", default="/tmp/geoscaler_budget")
+    args = parser.parse_args()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    ceiling = ceilings(args.ceiling)
+    rows = []
+    for entry in find_meshes(args.paths):
+        name = entry.path.parent.name
+        for scale in args.scale:
+            runs = []
+            for budget in args.budget:
+                for load in args.load:
+                    run = run_downsample(entry.path, scale, budget, load == "busy", out)
+                    runs.append(
+                        {"mesh": name, "scale": scale, "budget": budget, "load": load, **run}
+                    )
+            filters = score_runs(entry.path, scale, args.sets, runs)
+            for run in runs:
+                del run["textures"]
+                best = {d: max(f[d] for f in filters.values()) for d in args.sets}
+                run["gain_db"] = {d: run["psnr"][d] - filters["bicubic"][d] for d in args.sets}
+                run["lanczos_gain_db"] = {
+                    d: filters["lanczos"][d] - filters["bicubic"][d] for d in args.sets
+                }
+                run["below_best_filter"] = any(run["psnr"][d] < best[d] for d in args.sets)
+                top = ceiling.get((name, scale))
+                run["ceiling_share"] = None if not top else run["gain_db"][args.sets[0]] / top
+                rows.append(run)
+                print(format_row(run, args.sets), flush=True)
+            (out / "budget.json").write_text(json.dumps(rows, indent=2, default=str))
+    (out / "budget.md").write_text(markdown(rows, args.sets))
+    print(summary(rows, args.sets))
+    return 0
+
+
+def format_row(run: dict, sets: list[float]) -> str:
+    gains = " ".join(f"{run['gain_db'][d]:+6.2f}" for d in sets)
+    share = "" if run["ceiling_share"] is None else f"{100 * run['ceiling_share']:5.0f}%"
+    return (
+        f"{run['mesh']:26} x{run['scale']} {run['budget']:>4.0f}s {run['load']:5} first "
+        f"{run['first_step_s'] or 0:5.1f}s steps {run['steps'] or 0:4} wall {run['wall_s']:6.1f}s "
+        f"{run['shipped']:8} gain {gains} {share} {'BELOW' if run['below_best_filter'] else ''}"
+    )
+
+
+def markdown(rows: list[dict], sets: list[float]) -> str:
+    head = "| mesh | scale | budget | load | first step s | steps | wall s | shipped | "
+    head += " | ".join(f"gain {d:g}" for d in sets) + " | ceiling share | below a filter |"
+    lines = [head, "|" + " --- |" * (10 + len(sets) - 1)]
+    for r in rows:
+        share = "" if r["ceiling_share"] is None else f"{100 * r['ceiling_share']:.0f}%"
+        gains = " | ".join(f"{r['gain_db'][d]:+.2f}" for d in sets)
+        lines.append(
+            f"| {r['mesh']} | x{r['scale']} | {r['budget']:.0f} | {r['load']} | "
+            f"{r['first_step_s']} | {r['steps']} | {r['wall_s']:.1f} | {r['shipped']} | "
+            f"{gains} | {share} | {'yes' if r['below_best_filter'] else 'no'} |"
+        )
+    return "\n".join(lines) + "\n\n" + summary(rows, sets) + "\n"
+
+
+def summary(rows: list[dict], sets: list[float]) -> str:
+    """Per scale, budget and load: mean and worst gain on Q, worst wall-clock overrun, the
+    slowest first step, the lowest ceiling share and how many files fell below a filter."""
+    lines = []
+    keys = sorted({(r["scale"], r["budget"], r["load"]) for r in rows})
+    for scale, budget, load in keys:
+        mine = [r for r in rows if (r["scale"], r["budget"], r["load"]) == (scale, budget, load)]
+        gains = [r["gain_db"][sets[0]] for r in mine]
+        shares = [r["ceiling_share"] for r in mine if r["ceiling_share"] is not None]
+        overrun = max(r["wall_s"] / budget - 1 for r in mine)
+        first = max(r["first_step_s"] or 0 for r in mine)
+        share = f", ceiling share min {100 * min(shares):.0f}%" if shares else ""
+        lines.append(
+            f"x{scale} {budget:.0f} s {load}: {len(mine)} meshes, gain on Q mean "
+            f"{statistics.mean(gains):+.2f} worst {min(gains):+.2f} dB{share}, wall at most "
+            f"{100 * overrun:+.0f}% of the budget, first step by {first:.1f} s, below a filter: "
+            f"{sum(r['below_best_filter'] for r in mine)}"
+        )
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
