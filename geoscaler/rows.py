@@ -30,7 +30,7 @@ ROW_KEYS = (
 ``texture_bytes`` the RGBA8 memory of all textures (``BYTES_PER_TEXEL``), PSNRs and gain in
 dB (``+inf`` for a render identical to the reference), ``seconds`` the method's wall time,
 ``shipped`` the method whose textures the row scores: the row's own, or for a learned method
-the filter that beat it on Q (:func:`no_worse_than_filters`)."""
+the filter the validation ranked above it (:func:`geoscaler.job.no_worse_than_filters`)."""
 
 
 def texture_facts(textures: Sequence[np.ndarray | None]) -> tuple[list[int], int]:
