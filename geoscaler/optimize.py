@@ -297,9 +297,7 @@ class _Caching:
     def _cache_pool_view(self) -> bool:
         if not self.pool.cache_next():
             return False
-        device = self.train.renderer.device
-        zeros = [None if s is None else torch.zeros(*s, 3, device=device) for s in self.train.sizes]
-        self.train.render(len(self.pool) - 1, zeros, None)  # finds the view's taps
+        self.train.find_taps(len(self.pool) - 1)
         return True
 
     def _cache_one(self) -> bool:

@@ -136,7 +136,7 @@ class Validation:
         started = time.perf_counter()
         cache = self.sets[name]
         cache.views.cache_next()
-        cache.render(len(cache) - 1, self._probe_textures(), None)  # finds the view's taps
+        cache.find_taps(len(cache) - 1)
         self._view_seconds = max(self._view_seconds, time.perf_counter() - started)
         if not self._render_seconds:
             self._measure(cache)
@@ -237,15 +237,13 @@ class Validation:
             seconds += self._view_seconds * sum(missing)
         return seconds
 
-    def _probe_textures(self) -> list[torch.Tensor | None]:
-        device = next(iter(self.sets.values())).renderer.device
-        return [None if s is None else torch.zeros(*s, 3, device=device) for s in self.sizes]
-
     @torch.no_grad()
     def _measure(self, cache: ViewCache) -> None:
         """Time a candidate's render and the protocol metrics in a cached view, once."""
+        device = cache.renderer.device
+        probe = [None if s is None else torch.zeros(*s, 3, device=device) for s in self.sizes]
         started = time.perf_counter()
-        image = cache.render(0, self._probe_textures(), None)
+        image = cache.render(0, probe, None)
         self._render_seconds = time.perf_counter() - started
         reference, foreground = cache.views.reference(0)
         started = time.perf_counter()

@@ -159,7 +159,8 @@ class ViewCache:
     """A :class:`ViewSet` plus, for models that keep the mesh's UVs, every view's texture taps
     for candidate textures of fixed sizes, so a render is one gather per material.
 
-    Taps are found when a view is first rendered, so a cache follows its view set as it grows
+    Taps are found when a view is first rendered (or :meth:`find_taps` asks), so a cache
+    follows its view set as it grows
     (several caches, one per set of sizes, may share one view set).
 
     Args:
@@ -182,9 +183,9 @@ class ViewCache:
         return len(self.views)
 
     @torch.no_grad()
-    def _find_taps(self, view: int) -> None:
-        """Find the taps of every cached view up to ``view``."""
-        while len(self.taps) <= view:
+    def find_taps(self, view: int) -> None:
+        """Find the taps of every cached view up to ``view`` (nothing without taps)."""
+        while self.with_taps and len(self.taps) <= view:
             gbuffer = self.views.gbuffers[len(self.taps)]
             self.taps.append(self._taps(gbuffer))
             self.untextured.append(self._untextured(gbuffer))
@@ -231,7 +232,7 @@ class ViewCache:
         if uvs is not None or not self.with_taps:
             mips = [None if t is None else MipTexture(t) for t in textures]
             return self.renderer.render(gbuffer, mips, uvs)
-        self._find_taps(view)
+        self.find_taps(view)
         image = self.untextured[view]
         for index, (texture, taps) in enumerate(zip(textures, self.taps[view], strict=True)):
             if texture is None or taps is None:

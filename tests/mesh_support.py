@@ -57,6 +57,25 @@ def data_uri(blob: bytes, mime: str) -> str:
     return f"data:{mime};base64," + base64.b64encode(blob).decode()
 
 
+def one_primitive_scene() -> dict:
+    """The part of a glTF document every hand-written test asset shares: one scene, one node,
+    one mesh whose one primitive reads accessors 0 (POSITION), 1 (TEXCOORD_0), 2 (indices) and
+    material 0."""
+    return {
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [
+            {
+                "primitives": [
+                    {"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": 0}
+                ]
+            }
+        ],
+    }
+
+
 def write_gltf(
     folder: Path,
     gltf_uvs: np.ndarray,
@@ -77,17 +96,7 @@ def write_gltf(
     views = [(0, 36), (36, 24), (60, 12)]
     material = material or {"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}
     doc = {
-        "asset": {"version": "2.0"},
-        "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0}],
-        "meshes": [
-            {
-                "primitives": [
-                    {"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": 0}
-                ]
-            }
-        ],
+        **one_primitive_scene(),
         "materials": [material],
         "textures": [{"source": 0}, {"source": 1}][: 2 if second_image_uri else 1],
         "images": [{"uri": image_uri or data_uri(png_bytes(texture), "image/png")}]

@@ -40,7 +40,7 @@ def texels_read(cache: ViewCache, material: int = 0) -> torch.Tensor:
     layout = cache.layouts[material]
     usage = torch.zeros(layout.num_texels)
     for view in range(len(cache)):
-        cache.render(view, [torch.zeros(*layout.size, 3)], None)  # finds the view's taps
+        cache.find_taps(view)
         taps = cache.taps[view][material]
         usage.index_add_(0, taps.texel.long(), taps.weight.abs())
     ones = torch.ones(*layout.size, 1, requires_grad=True)

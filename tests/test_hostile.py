@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import ONE_VIEW
-from mesh_support import QUAD_OBJ, TEXTURE, png_bytes, two_material_mesh
+from mesh_support import QUAD_OBJ, TEXTURE, one_primitive_scene, png_bytes, two_material_mesh
 from PIL import Image
 
 from geoscaler.cli import main
@@ -73,17 +73,7 @@ def quad(
         views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(part)})
         blob += part
     doc = {
-        "asset": {"version": "2.0"},
-        "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0}],
-        "meshes": [
-            {
-                "primitives": [
-                    {"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": 0}
-                ]
-            }
-        ],
+        **one_primitive_scene(),
         "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
         "textures": [{"source": 0}],
         "images": [{"bufferView": 3, "mimeType": "image/png"}],
