@@ -19,10 +19,10 @@ PACKAGES = {"geoscaler": ROOT / "geoscaler", "geoscaler.app": ROOT / "app"}
 LAYERS = [
     ["errors", "protocol"],
     [""],  # the package itself (geoscaler/__init__.py)
-    ["texture", "raster", "metrics", "figures"],
+    ["texture", "raster", "metrics", "figures", "sizes"],
     ["mesh", "cameras"],
     ["filters", "io", "procedural"],
-    ["render", "uvmaps"],
+    ["render", "uvmaps", "maps", "soft"],
     ["views", "nn"],
     ["validation", "losses"],
     ["optimize"],
@@ -30,7 +30,7 @@ LAYERS = [
     ["arguments", "rows"],
     ["job"],
     ["report", "console"],
-    ["bench"],
+    ["bench", "batch"],
     ["app", "shaders"],
     ["cli"],
 ]
