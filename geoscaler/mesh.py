@@ -16,6 +16,7 @@ Conventions (used everywhere in the project):
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -27,35 +28,81 @@ from .errors import GeoscalerError
 from .texture import linear_to_srgb, srgb_to_linear
 
 
+@dataclass(frozen=True, eq=False)
+class SourceImage:
+    """How a texture came in: the image file (or embedded image) it was decoded from.
+
+    Compared and hashed by identity: the loader gives one object per image of the file, shared
+    by every slot and material that shows it.
+
+    Attributes:
+        pixels: the very ``(H, W, C)`` uint8 array decoded from it (read-only); a texture
+            whose array ``is`` this one is unchanged since loading.
+        mime: its type as its bytes say (``"image/png"``, ``"image/jpeg"``, ``"image/webp"``;
+            others, e.g. ``"image/bmp"`` from an MTL, are re-encoded as PNG when written).
+        data: the encoded file bytes as read.
+        name: a file-name stem to reuse when writing it (e.g. ``"sofa_03_diff_1k"``).
+    """
+
+    pixels: np.ndarray
+    mime: str
+    data: bytes
+    name: str
+
+
+BASE_COLOR = "baseColorTexture"
+"""The slot name of the base colour in :attr:`Material.sources` and :meth:`TexturedMesh.images`."""
+ATTRIBUTE_COLUMNS = {"TANGENT": (4,), "COLOR_0": (3, 4), "TEXCOORD_1": (2,)}
+"""The extra per-vertex glTF attributes a mesh can carry, and their column counts."""
+
+
 @dataclass
 class Material:
-    """A material as far as rendering needs it, plus the loader's object for export.
+    """A material: what rendering needs, every other map, and the file's material properties.
+
+    Texture arrays are ``(H, W, C)`` uint8, row 0 at the top. The loader gives the same array
+    object to every slot and material that shows the same image, read-only; sharing is by
+    identity (:meth:`TexturedMesh.images`, :meth:`TexturedMesh.with_images`).
 
     Attributes:
         name: material name from the file.
-        base_color_texture: ``(H, W, C)`` uint8 sRGB, ``C`` 3 or 4, row 0 at the top; None when
-            the material has no base-colour map.
+        base_color_texture: sRGB, ``C`` 3 or 4; None when the material has no base-colour map.
         base_color_factor: ``(4,)`` float32 linear RGBA multiplier (1 where the texture is the
             colour, as for OBJ ``map_Kd``).
-        source: the loader's material (e.g. a trimesh ``PBRMaterial``), kept so that export can
-            preserve every other map and property untouched. Its images are the maps other
-            than base colour (normal, occlusion, emissive, metallic-roughness); its base-colour
-            slot is left empty: ``base_color_texture`` is the one truth.
-        properties: the glTF material object (JSON) without image indices: every texture slot
-            keeps its fields (``scale``, ``strength``, ``texCoord``, ``extensions``) and the
-            texture's sampler under ``"sampler"``. Export writes it back. Empty for plain OBJ.
+        properties: the glTF material object (JSON) without texture indices: every texture
+            slot keeps its fields (``scale``, ``strength``, ``texCoord``, ``extensions`` such as
+            ``KHR_texture_transform``) and the texture's sampler under ``"sampler"``; extension
+            slots stay inside their extension objects. From an MTL: ``emissiveFactor`` (Ke),
+            and under ``"mtl"`` what only MTL says (map keywords and options, other
+            statements). Export writes it back.
+        maps: every texture map other than base colour, ``C`` 1 to 4, by slot: glTF names
+            (``"metallicRoughnessTexture"``, ``"normalTexture"``, ``"occlusionTexture"``,
+            ``"emissiveTexture"``), extension slots as ``"EXTENSION/field"`` (e.g.
+            ``"KHR_materials_clearcoat/clearcoatNormalTexture"``), and MTL maps glTF has no
+            slot for as ``"mtl:KEYWORD"`` (``"mtl:map_Ks"``, ``"mtl:map_Ns"``, ``"mtl:map_d"``,
+            ``"mtl:bump"`` for a grey height map...).
+        sources: for every slot that has one, ``"baseColorTexture"`` included, the image it
+            was loaded from. Kept when a texture is replaced, so the writer can reuse its
+            format and name (and its bytes, for a texture still ``is`` its source's pixels).
     """
 
     name: str
     base_color_texture: np.ndarray | None
     base_color_factor: np.ndarray = field(default_factory=lambda: np.ones(4, dtype=np.float32))
-    source: Any = None
     properties: dict[str, Any] = field(default_factory=dict)
+    maps: dict[str, np.ndarray] = field(default_factory=dict)
+    sources: dict[str, SourceImage] = field(default_factory=dict)
+
+    def textures(self) -> dict[str, np.ndarray]:
+        """Every texture of the material by slot: base colour first (when it has one), then
+        :attr:`maps` in their order."""
+        first = {} if self.base_color_texture is None else {BASE_COLOR: self.base_color_texture}
+        return {**first, **self.maps}
 
 
 @dataclass
 class TexturedMesh:
-    """A triangle mesh with per-vertex UVs and base-colour textures.
+    """A triangle mesh with per-vertex UVs and its materials' textures.
 
     Attributes:
         positions: ``(V, 3)`` float32, scene-graph transforms applied, file units.
@@ -68,6 +115,10 @@ class TexturedMesh:
         source_path: the file it was loaded from, if any.
         source_files: every file read to build it (mesh, MTL, buffers, textures), resolved;
             :func:`geoscaler.io.save_mesh` refuses to write over any of them.
+        attributes: extra per-vertex glTF attributes kept from the file and written back
+            (:data:`ATTRIBUTE_COLUMNS`): ``"TANGENT"`` ``(V, 4)`` float32 (unit xyz, w = +-1),
+            ``"COLOR_0"`` ``(V, 3 or 4)`` float32 in [0, 1], ``"TEXCOORD_1"`` ``(V, 2)``
+            float32 in the OpenGL convention, as ``uvs``.
     """
 
     positions: np.ndarray
@@ -79,6 +130,7 @@ class TexturedMesh:
     materials: list[Material]
     source_path: Path | None = None
     source_files: list[Path] = field(default_factory=list)
+    attributes: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def num_points(self) -> int:
@@ -112,21 +164,12 @@ class TexturedMesh:
     ) -> TexturedMesh:
         """A copy with a new base-colour texture for one material, and optionally new UVs.
 
-        Parameters
-        ----------
-        material_index : int
-            Which material gets ``texture``.
-        texture : (H, W, C) uint8
-            sRGB texels, ``C`` 3 or 4, row 0 at the top. Kept by reference, not copied.
-        uvs : (V, 2) float, optional
-            New texture coordinates of every vertex (OpenGL convention).
-
-        Returns
-        -------
-        TexturedMesh
-            Shares every unchanged array with ``self``; factor, other maps, properties and
-            source files carry over, so :func:`geoscaler.io.save_mesh` still protects the
-            input files.
+        ``texture``: ``(H, W, C)`` uint8 sRGB, ``C`` 3 or 4, row 0 at the top, kept by reference;
+        ``uvs``: ``(V, 2)`` texture coordinates of every vertex (OpenGL convention). The copy
+        shares every unchanged array with ``self``; factor, other maps, properties, sources
+        and source files carry over (so :func:`geoscaler.io.save_mesh` still protects the
+        input files). Only this material's base colour changes, even where the array is
+        shared with other slots or materials: :meth:`with_images` replaces it everywhere.
         """
         if not 0 <= material_index < len(self.materials):
             raise ValueError(
@@ -141,6 +184,39 @@ class TexturedMesh:
             if new_uvs.shape != self.uvs.shape:
                 raise ValueError(f"uvs must have shape {self.uvs.shape}, got {new_uvs.shape}")
         return replace(self, uvs=new_uvs, materials=materials)
+
+    def images(self) -> list[tuple[np.ndarray, list[tuple[int, str]]]]:
+        """Every distinct texture array (base colours and maps, by identity) with the
+        ``(material index, slot)`` pairs that show it.
+
+        Ordered by first appearance: materials in order, each material's slots as
+        :meth:`Material.textures` gives them (base colour first).
+        """
+        found: dict[int, tuple[np.ndarray, list[tuple[int, str]]]] = {}
+        for index, material in enumerate(self.materials):
+            for slot, pixels in material.textures().items():
+                found.setdefault(id(pixels), (pixels, []))[1].append((index, slot))
+        return list(found.values())
+
+    def with_images(self, replacements: Mapping[int, np.ndarray]) -> TexturedMesh:
+        """A copy where every texture array whose ``id()`` is a key of ``replacements`` is
+        replaced by the value, base colours and maps alike, so that textures shared before
+        stay shared. ``sources`` and everything else carry over (arrays by reference).
+
+        Raises ``ValueError`` (:class:`TextureError`) for a replacement that is not a texture
+        array (``C`` 3 or 4 for a base colour, 1 to 4 for another map).
+        """
+        materials = []
+        for index, material in enumerate(self.materials):
+            textures = {}
+            for slot, pixels in material.textures().items():
+                textures[slot] = new = replacements.get(id(pixels), pixels)
+                if new is not pixels:
+                    channels = (3, 4) if slot == BASE_COLOR else (1, 2, 3, 4)
+                    check_texture(new, f"replacement of {slot} of material {index}", channels)
+            base = textures.pop(BASE_COLOR, None)
+            materials.append(replace(material, base_color_texture=base, maps=textures))
+        return replace(self, materials=materials)
 
     def validate(self) -> None:
         """Raise ``ValueError`` when the arrays disagree in shape or index range."""
@@ -168,6 +244,28 @@ class TexturedMesh:
                 check_texture(material.base_color_texture, what)
             if np.shape(material.base_color_factor) != (4,):
                 raise ValueError(f"material {material.name!r}: base_color_factor must be (4,)")
+            for slot, pixels in material.maps.items():
+                check_texture(pixels, f"{slot} of material {material.name!r}", (1, 2, 3, 4))
+        for name, array in self.attributes.items():
+            _check_attribute(name, array, count)
+
+
+def _check_attribute(name: str, array: np.ndarray, count: int) -> None:
+    """Raise ``ValueError`` unless ``array`` is a valid value of attribute ``name`` for
+    ``count`` vertices (:data:`ATTRIBUTE_COLUMNS`; what glTF requires of its values)."""
+    if name not in ATTRIBUTE_COLUMNS:
+        raise ValueError(f"attribute {name!r} is not one of {', '.join(ATTRIBUTE_COLUMNS)}")
+    shape = np.shape(array)
+    if len(shape) != 2 or shape[0] != count or shape[1] not in ATTRIBUTE_COLUMNS[name]:
+        columns = " or ".join(str(c) for c in ATTRIBUTE_COLUMNS[name])
+        raise ValueError(f"attribute {name} has shape {shape}, expected ({count}, {columns})")
+    values = np.asarray(array, dtype=np.float64)
+    if not np.isfinite(values).all():
+        raise ValueError(f"attribute {name} has NaN or infinite values")
+    if name == "COLOR_0" and (values.min(initial=0) < 0 or values.max(initial=0) > 1):
+        raise ValueError("attribute COLOR_0 has values outside [0, 1]")
+    if name == "TANGENT" and not np.isin(values[:, 3], (-1.0, 1.0)).all():
+        raise ValueError("attribute TANGENT has w components other than 1 and -1")
 
 
 class TextureError(GeoscalerError, ValueError):

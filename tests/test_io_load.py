@@ -89,10 +89,11 @@ def test_dev_mesh_uv_convention_matches_texture_across_seams(dev_mesh: TexturedM
 @pytest.mark.filterwarnings(DROPPED_MAPS)
 @pytest.mark.parametrize("suffix", FORMATS)
 def test_dev_mesh_round_trips(dev_mesh: TexturedMesh, suffix: str, tmp_path: Path):
-    # A small texture keeps PNG encoding fast; it is also what a downsampler saves.
+    # A small texture keeps PNG encoding fast; it is also what a downsampler saves. PNG: the
+    # texels come back exactly (a JPEG source's map would otherwise stay a lossy JPEG).
     small = np.ascontiguousarray(dev_mesh.materials[0].base_color_texture[::16, ::16])
     mesh = dev_mesh.with_texture(0, small)
-    written = save_mesh(mesh, tmp_path / f"out{suffix}")
+    written = save_mesh(mesh, tmp_path / f"out{suffix}", image_format="png")
     assert written[-1] == tmp_path / f"out{suffix}"
     assert sorted(tmp_path.iterdir()) == sorted(written), "temporary files left behind"
     assert_same_mesh(load_mesh(written[-1]), mesh)
@@ -309,16 +310,20 @@ def test_missing_maps_other_than_base_colour_only_warn(tmp_path: Path):
                       second_image_uri="gone_normal.png")  # fmt: skip
     with pytest.warns(UserWarning, match="gone_normal.png"):
         mesh = load_mesh(path)
-    assert mesh.materials[0].source.normalTexture is None
+    assert mesh.materials[0].maps == {} and "normalTexture" not in mesh.materials[0].properties
     grey = Image.fromarray(TEXTURE[..., 0])
     path = write_obj_asset(tmp_path / "obj", mtl="newmtl mat\nmap_Kd tex.png\nbump tex.png\n"
                            "map_Ke gone.png\n")  # fmt: skip
     (tmp_path / "obj" / "tex.png").write_bytes(png_bytes(grey))
     with pytest.warns(UserWarning) as caught:
         mesh = load_mesh(path)
-    messages = " ".join(str(w.message) for w in caught)
-    assert "gone.png" in messages and "height" in messages
-    assert mesh.materials[0].source.normalTexture is None
+    assert [str(w.message) for w in caught if "gone.png" in str(w.message)]
+    # A grey bump map is a height map, not a normal map: kept under its MTL keyword, and the
+    # one file behind map_Kd and bump is one array.
+    material = mesh.materials[0]
+    assert list(material.maps) == ["mtl:bump"]
+    assert material.maps["mtl:bump"] is material.base_color_texture
+    np.testing.assert_array_equal(material.base_color_texture, np.repeat(TEXTURE[..., :1], 3, 2))
 
 
 def test_gltf_material_properties_survive_saving(tmp_path: Path):
@@ -352,10 +357,13 @@ def test_gltf_material_properties_survive_saving(tmp_path: Path):
     pbr = written["pbrMetallicRoughness"]
     assert (pbr["metallicFactor"], pbr["roughnessFactor"]) == (0.1, 0.8)
     np.testing.assert_allclose(pbr["baseColorFactor"], [0.3, 0.5, 0.7, 0.9], atol=1e-7)
-    assert len(saved["images"]) == 2  # base colour + the one map behind normal and occlusion
-    reloaded = load_mesh(tmp_path / "out" / "fancy.gltf")
-    np.testing.assert_array_equal(image_to_texture(reloaded.materials[0].source.normalTexture),
-                                  TEXTURE)  # fmt: skip
+    assert len(saved["images"]) == 1  # one image behind base colour, normal and occlusion
+    assert len(saved["textures"]) == 1
+    reloaded = load_mesh(tmp_path / "out" / "fancy.gltf").materials[0]
+    assert list(reloaded.maps) == ["normalTexture", "occlusionTexture"]
+    assert reloaded.maps["normalTexture"] is reloaded.base_color_texture
+    assert reloaded.maps["occlusionTexture"] is reloaded.base_color_texture
+    np.testing.assert_array_equal(reloaded.maps["normalTexture"], TEXTURE)
 
 
 # ----------------------------------------------------------------------------- errors

@@ -7,7 +7,6 @@ import os
 import re
 import warnings
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -21,14 +20,12 @@ from mesh_support import (
     write_gltf,
     write_obj_asset,
 )
-from PIL import Image
 
 from geoscaler.errors import GeoscalerError
 from geoscaler.io import (
     check_output,
     check_outputs,
     gltf,
-    image_to_texture,
     load_mesh,
     output_files,
     save_mesh,
@@ -52,15 +49,15 @@ def test_two_materials_round_trip(tmp_path: Path, suffix: str):
 def test_saving_never_overwrites_the_input(tmp_path: Path):
     folder = tmp_path / "asset"
     source = write_obj_asset(folder)
-    (folder / "tex.png").rename(folder / "copy_0_basecolor.png")
-    (folder / "mesh.mtl").write_text("newmtl mat\nmap_Kd copy_0_basecolor.png\n")
+    (folder / "copy_tex.png").write_bytes((folder / "tex.png").read_bytes())
+    (folder / "mesh.mtl").write_text("newmtl mat\nmap_Kd tex.png\nnorm copy_tex.png\n")
     (tmp_path / "alias").symlink_to(folder)
     mesh = load_mesh(source)
     before = {p: p.read_bytes() for p in folder.iterdir()}
     targets = [
         source,
         tmp_path / "alias" / "mesh.obj",  # the input, through a symbolic link
-        folder / "copy.obj",  # would write copy_0_basecolor.png, the input texture
+        folder / "copy.obj",  # would write copy_tex.png (its map_Kd), the input normal map
         folder / "mesh.OBJ",  # would write mesh.mtl, the input library
     ]
     for target in targets:
@@ -121,10 +118,13 @@ def test_obj_export_keeps_normal_maps_and_warns_about_the_rest(tmp_path: Path):
     mesh = load_mesh(write_gltf(tmp_path / "in", np.zeros((3, 2)), material=material))
     with pytest.warns(UserWarning, match="occlusionTexture"):
         written = save_mesh(mesh, tmp_path / "out.obj")
-    assert "norm out_0_normal.png" in (tmp_path / "out.mtl").read_text()
-    reloaded = load_mesh(written[-1])
-    np.testing.assert_array_equal(image_to_texture(reloaded.materials[0].source.normalTexture),
-                                  TEXTURE)  # fmt: skip
+    mtl = (tmp_path / "out.mtl").read_text().splitlines()
+    # One image behind base colour and normal (embedded and unnamed: "image0"), written once.
+    assert mtl[-2:] == ["map_Kd out_image0.png", "norm out_image0.png"]
+    assert [p.name for p in written] == ["out_image0.png", "out.mtl", "out.obj"]
+    reloaded = load_mesh(written[-1]).materials[0]
+    assert list(reloaded.maps) == ["normalTexture"]
+    np.testing.assert_array_equal(reloaded.maps["normalTexture"], TEXTURE)
 
 
 # ----------------------------------------------------------------------------- output files
@@ -147,7 +147,7 @@ def test_output_files_are_the_files_save_mesh_writes(tmp_path: Path, suffix: str
 
 def test_output_files_warn_about_nothing():
     mesh = two_material_mesh()  # with a map that OBJ cannot hold: save_mesh would warn
-    mesh.materials[0].source = SimpleNamespace(occlusionTexture=Image.new("RGB", (1, 1)))
+    mesh.materials[0].maps["occlusionTexture"] = np.zeros((1, 1, 3), np.uint8)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         names = [p.name for p in output_files(mesh, Path("out.obj"))]

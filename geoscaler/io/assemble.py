@@ -2,12 +2,13 @@
 
 The format readers (:mod:`geoscaler.io.obj`, :mod:`geoscaler.io.gltf`) turn a file into placed
 parts (:class:`Part`) and material builders; :func:`assemble` joins them, keeps the materials
-the faces use, welds vertices by exact (position, UV) and points by exact position, and takes
-normals from the file where it has them.
+the faces use, welds vertices by exact (position, UV, extra attributes) and points by exact
+position, and takes normals from the file where it has them.
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -17,6 +18,7 @@ import trimesh
 
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import (
+    ATTRIBUTE_COLUMNS,
     Material,
     TexturedMesh,
     check_vertices,
@@ -35,6 +37,7 @@ class Part(NamedTuple):
     uvs: np.ndarray | None  # (n, 2) float64
     normals: np.ndarray | None  # (n, 3) float64, from the file
     material: int | None  # index into the loader's material list; None: no material
+    attributes: dict[str, np.ndarray] | None = None  # TANGENT, COLOR_0, TEXCOORD_1 (glTF)
 
 
 MaterialBuilder = Callable[[], Material]
@@ -108,8 +111,10 @@ def assemble(
     _check_textures(path, parts, materials, slot)
     parts = sorted(parts, key=lambda p: slot[p.material])
     positions, uvs, normals, faces, face_material = _concatenate(parts, slot)
+    attributes = _attributes(path, parts)
     check_vertices(positions, uvs, str(path))
-    group, first = first_occurrence_groups(np.concatenate([positions, uvs], axis=1))
+    key = np.concatenate([positions, uvs, *attributes.values()], axis=1)
+    group, first = first_occurrence_groups(key)
     faces = group[faces]
     keep = np.zeros(len(first), dtype=bool)
     keep[faces] = True
@@ -130,6 +135,7 @@ def assemble(
         materials=materials,
         source_path=path,
         source_files=list(dict.fromkeys(files)),
+        attributes={name: values[first] for name, values in attributes.items()},
     )
     check_visible(mesh, str(path))
     return mesh
@@ -167,6 +173,36 @@ def _concatenate(parts: list[Part], slot: dict) -> tuple[np.ndarray, ...]:
         [np.full(len(p.faces), slot[p.material], dtype=np.int64) for p in parts]
     )
     return positions, uvs, normals, faces, face_material
+
+
+def _attributes(path: Path, parts: list[Part]) -> dict[str, np.ndarray]:
+    """The extra attributes of the joined parts, ``(V, k)`` float32 each, in the order of
+    :data:`geoscaler.mesh.ATTRIBUTE_COLUMNS`. A part without one that others have gets a
+    neutral value: COLOR_0 white (RGB to RGBA: opaque), TEXCOORD_1 zero (that part's
+    materials cannot use it); TANGENT is then dropped for all, with a warning (renderers
+    compute tangents where a mesh has none)."""
+    out = {}
+    for name in ATTRIBUTE_COLUMNS:
+        values = [(p.attributes or {}).get(name) for p in parts]
+        if all(v is None for v in values):
+            continue
+        if name == "TANGENT" and any(v is None for v in values):
+            warnings.warn(
+                f"{path}: only some primitives have TANGENT; it is dropped (renderers compute "
+                "tangents from the normal map's UVs where a mesh has none).",
+                stacklevel=5,
+            )
+            continue
+        width = max(v.shape[1] for v in values if v is not None)
+        filled = []
+        for part, v in zip(parts, values, strict=True):
+            fill = 1.0 if name == "COLOR_0" else 0.0
+            block = np.full((len(part.positions), width), fill)
+            if v is not None:
+                block[:, : v.shape[1]] = v
+            filled.append(block)
+        out[name] = np.concatenate(filled).astype(np.float32)
+    return out
 
 
 def _merge_normals(normals: np.ndarray, group: np.ndarray, keep: np.ndarray) -> np.ndarray:

@@ -1,39 +1,37 @@
-"""glTF 2.0: the glTF/GLB reader and the glTF (+ .bin + PNG) / GLB writer.
+"""glTF 2.0: the glTF/GLB reader (the writer is :mod:`geoscaler.io.gltf_write`).
 
-Reading: the JSON is checked here (version, required extensions, external files resolved
-inside the mesh's folder, base-colour texture coordinates) and each material's JSON is kept,
-texture indices replaced by samplers, so that saving writes it back; trimesh reads geometry
-and images. glTF UVs have ``v = 0`` at the top of the image: trimesh flips them into the
-OpenGL convention on reading, the writer flips them back. Writing: one mesh with one primitive
-per material, sharing the vertex accessors; images as PNG files (glTF) or in the binary chunk
-(GLB). glTF's numeric enums have names here (:data:`FLOAT`, :data:`ARRAY_BUFFER`...).
+Reading: the JSON is checked (:mod:`geoscaler.io.gltf_check`: the specification; here: version,
+required extensions, external files resolved inside the mesh's folder, base-colour texture
+coordinates; :func:`geoscaler.io.gltf_scene.check_kept`: nothing that would be dropped), the
+geometry is read from the accessors (:mod:`geoscaler.io.gltf_scene`) and every image a used
+material shows is decoded once, however many textures, materials or image entries (same URI,
+same buffer view) show it. Each material's JSON is kept with texture indices replaced by the
+textures' samplers, so that saving writes it back. glTF UVs have ``v = 0`` at the top of the
+image; they are flipped into the OpenGL convention here and back by the writer. glTF's numeric
+enums have names here (:data:`FLOAT`, :data:`ARRAY_BUFFER`...).
 """
 
 from __future__ import annotations
 
 import copy
-import io
 import json
 import struct
 import urllib.parse
 import warnings
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
-import trimesh
-from PIL import Image
 
 from geoscaler.errors import GeoscalerError
-from geoscaler.mesh import Material, TexturedMesh
+from geoscaler.mesh import BASE_COLOR, Material, SourceImage
 
-from .assemble import MaterialBuilder, Part, scene_parts
-from .gltf_check import buffer_data, check_data, check_structure
-from .images import decode_texture
-from .paths import FolderResolver, resolve_reference
-
-if TYPE_CHECKING:
-    from .save import ImageOut
+from .assemble import MaterialBuilder, Part
+from .gltf_check import buffer_data, check_data, check_structure, data_uri_bytes
+from .gltf_scene import check_kept, gltf_parts
+from .images import open_embedded, source_image
+from .paths import resolve_reference
+from .slots import SPECULAR_GLOSSINESS, slot_path, texture_infos
 
 # glTF enums (the OpenGL constants the glTF 2.0 specification uses).
 UNSIGNED_BYTE = 5121
@@ -51,27 +49,15 @@ ELEMENT_ARRAY_BUFFER = 34963
 TRIANGLES = 4
 """Primitive ``mode`` of triangle lists: the default, so the writer leaves ``mode`` out."""
 
-TEXTURE_SLOTS = {
-    "baseColorTexture": ("pbrMetallicRoughness", "baseColorTexture"),
-    "metallicRoughnessTexture": ("pbrMetallicRoughness", "metallicRoughnessTexture"),
-    "normalTexture": ("normalTexture",),
-    "occlusionTexture": ("occlusionTexture",),
-    "emissiveTexture": ("emissiveTexture",),
-}
-"""Texture slots of a glTF material: slot name (a trimesh ``PBRMaterial`` attribute too) ->
-path of its texture-info object in the material JSON."""
-
 # ----------------------------------------------------------------------------- reading
 
-
-_GLTF_TAG = "geoscaler-material-"
 # Required extensions this loader honours (KHR_texture_transform: refused on base colour).
 _REQUIRED_OK = {
     "EXT_texture_webp",
     "KHR_texture_transform",
     "KHR_materials_unlit",
     "KHR_materials_emissive_strength",
-    "KHR_materials_pbrSpecularGlossiness",
+    SPECULAR_GLOSSINESS,
 }
 
 
@@ -83,7 +69,7 @@ def load_gltf(path: Path) -> tuple[list[Part], list[MaterialBuilder], list[Path]
     parts : list of Part
         The placed geometries; ``Part.material`` indexes ``builders``.
     builders : list of MaterialBuilder
-        One per glTF material, in file order.
+        One per glTF material, in file order; they share one image cache.
     files : list of Path
         The file itself and the external buffers and images it references, resolved.
     """
@@ -92,33 +78,17 @@ def load_gltf(path: Path) -> tuple[list[Part], list[MaterialBuilder], list[Path]
     binary = path.suffix.lower() == ".glb"
     doc, chunk = _split_glb(data, path) if binary else (_parse_json(data, path), None)
     check_structure(doc, path)
-    files = [path.resolve(), *_check_gltf(doc, path, root)]
-    check_data(doc, path, buffer_data(doc, path, root, chunk))
-    tagged = copy.deepcopy(doc)
-    for index, material in enumerate(tagged.get("materials", [])):
-        material["name"] = f"{_GLTF_TAG}{index}"
-    payload = _pack_glb(tagged, chunk) if binary else json.dumps(tagged).encode()
-    with warnings.catch_warnings():  # image sizes are checked before decoding, in our words
-        warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-        scene = trimesh.load_scene(
-            io.BytesIO(payload), file_type=path.suffix.lower()[1:],
-            resolver=FolderResolver(path, root), process=False,
-        )  # fmt: skip
-    loaded: dict[int, Any] = {}
-
-    def material_of(material: Any) -> int | None:
-        name = getattr(material, "name", "") if material is not None else ""
-        if not isinstance(name, str) or not name.startswith(_GLTF_TAG):
-            return None
-        loaded[int(name[len(_GLTF_TAG) :])] = material
-        return int(name[len(_GLTF_TAG) :])
-
-    parts = scene_parts(scene, material_of)
+    files, missing = _check_gltf(doc, path, root)
+    check_kept(doc, path)
+    buffers = buffer_data(doc, path, root, chunk)
+    check_data(doc, path, buffers)
+    parts = gltf_parts(doc, buffers, path)
+    images = _Images(doc, buffers, path, root, missing)
     builders = [
-        lambda i=i: _gltf_material(path, doc, i, loaded[i])
+        lambda i=i: _gltf_material(path, doc, i, images)
         for i in range(len(doc.get("materials", [])))
     ]
-    return parts, builders, files
+    return parts, builders, [path.resolve(), *files]
 
 
 def _parse_json(data: bytes, path: Path) -> dict:
@@ -170,7 +140,7 @@ def _split_glb(data: bytes, path: Path) -> tuple[dict, bytes | None]:
     return doc, chunk
 
 
-def _pack_glb(doc: dict, chunk: bytes | None) -> bytes:
+def pack_glb(doc: dict, chunk: bytes | None) -> bytes:
     """A GLB file from a JSON document and an optional BIN chunk."""
     text = json.dumps(doc, separators=(",", ":")).encode()
     text += b" " * (-len(text) % 4)
@@ -181,21 +151,23 @@ def _pack_glb(doc: dict, chunk: bytes | None) -> bytes:
     return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body
 
 
-def _check_gltf(doc: dict, path: Path, root: Path) -> list[Path]:
-    """Check version, required extensions and external files; return the files referenced."""
+def _check_gltf(doc: dict, path: Path, root: Path) -> tuple[list[Path], set[int]]:
+    """Check version, required extensions and external files; return the files referenced
+    and the images that are missing (a missing base-colour image is refused)."""
     version = str(doc.get("asset", {}).get("version", ""))
     if not version.startswith("2"):
         raise GeoscalerError(
             f"{path}: glTF version {version or '(missing)'}; only glTF 2.0 is supported. "
             "Re-export it as glTF 2.0."
         )
-    unknown = sorted(set(doc.get("extensionsRequired", [])) - _REQUIRED_OK)
+    required = doc.get("extensionsRequired", [])
+    unknown = sorted(e for e in required if e not in _REQUIRED_OK and "_materials_" not in e)
     if unknown:
         raise GeoscalerError(
             f"{path}: requires glTF extension(s) {', '.join(unknown)}, which GeoScaler cannot "
             "read (compressed geometry or textures). Re-export it without compression."
         )
-    files = []
+    files, missing = [], set()
     for index, buffer in enumerate(doc.get("buffers", [])):
         if _is_external(buffer):
             what = f"buffer #{index}"
@@ -211,7 +183,8 @@ def _check_gltf(doc: dict, path: Path, root: Path) -> list[Path]:
             if index in base_images:
                 raise
             warnings.warn(f"{exc} The map is skipped.", stacklevel=5)
-    return files
+            missing.add(index)
+    return files, missing
 
 
 def _is_external(item: dict) -> bool:
@@ -224,7 +197,7 @@ def _unquote(uri: str) -> str:
 
 
 def _texture_image_index(doc: dict, texture_index: int) -> int | None:
-    """The image a glTF texture shows (its source, or an extension's source)."""
+    """The image a glTF texture shows (its WebP source, its source, or an extension's)."""
     texture = doc.get("textures", [])[texture_index]
     extensions = texture.get("extensions", {})
     if "source" in extensions.get("EXT_texture_webp", {}):
@@ -238,52 +211,93 @@ def _texture_image_index(doc: dict, texture_index: int) -> int | None:
 def _base_color_images(doc: dict) -> set[int]:
     images = set()
     for material in doc.get("materials", []):
-        info = material.get("pbrMetallicRoughness", {}).get("baseColorTexture")
-        if isinstance(info, dict) and "index" in info:
-            images.add(_texture_image_index(doc, info["index"]))
+        for slot, parent, key in texture_infos(material):
+            if slot in (BASE_COLOR, f"{SPECULAR_GLOSSINESS}/diffuseTexture"):
+                images.add(_texture_image_index(doc, parent[key]["index"]))
     return images
 
 
-def _image_label(doc: dict, texture_index: int, path: Path) -> str:
-    image_index = _texture_image_index(doc, texture_index)
+def _image_label(doc: dict, image_index: int | None, path: Path) -> str:
     image = doc.get("images", [])[image_index] if image_index is not None else {}
     if _is_external(image):
         return repr(_unquote(image["uri"]))
     return f"image #{image_index} embedded in {path.name}"
 
 
-def _gltf_material(path: Path, doc: dict, index: int, pbr: Any) -> Material:
-    """Build a Material from the glTF JSON (exact factor, checks) and trimesh's images."""
+class _Images:
+    """Decodes each image of a glTF file once: image entries with the same resolved URI, the
+    same buffer view or the same data URI share one :class:`~geoscaler.mesh.SourceImage`."""
+
+    def __init__(
+        self, doc: dict, buffers: list[bytes], path: Path, root: Path, missing: set[int]
+    ) -> None:
+        self.doc, self.buffers, self.path, self.root = doc, buffers, path, root
+        self.missing = missing
+        self.decoded: dict[Any, SourceImage] = {}
+
+    def get(self, index: int | None) -> SourceImage | None:
+        """The image of ``doc["images"][index]``; None for no image or a missing file."""
+        if index is None or index in self.missing:
+            return None
+        image, path = self.doc["images"][index], self.path
+        name = image.get("name") if isinstance(image.get("name"), str) else f"image{index}"
+        if "bufferView" in image:
+            view = self.doc["bufferViews"][image["bufferView"]]
+            start = view.get("byteOffset", 0)
+            data = self.buffers[view["buffer"]][start : start + view["byteLength"]]
+            key: Any = ("view", image["bufferView"])
+        elif image["uri"].startswith("data:"):
+            data = data_uri_bytes(image["uri"], path, f"images[{index}].uri")
+            key = ("data", data)
+        else:
+            ref = _unquote(image["uri"])
+            file = resolve_reference(ref, path.parent, self.root, path, f"image #{index}")
+            key, name = ("file", file), Path(ref).name
+            if key not in self.decoded:
+                data = file.read_bytes()
+        if key not in self.decoded:
+            label = _image_label(self.doc, index, path)
+            opened = open_embedded(data, label, path)
+            self.decoded[key] = source_image(opened, data, label, path, name)
+        return self.decoded[key]
+
+
+def _gltf_material(path: Path, doc: dict, index: int, images: _Images) -> Material:
+    """Build a Material from the glTF JSON: every texture slot's image decoded (shared with
+    every other slot and material that shows it), exact factors, the JSON kept."""
     raw = doc["materials"][index]
     name = raw.get("name") or f"material_{index}"
-    pbr_json = raw.get("pbrMetallicRoughness", {})
-    info = pbr_json.get("baseColorTexture")
-    if isinstance(info, dict):
-        _check_base_color_info(info, path, name)
-    texture = None
-    if pbr.baseColorTexture is not None:
-        label = _image_label(doc, info["index"], path) if isinstance(info, dict) else name
-        texture = decode_texture(pbr.baseColorTexture, label, path)
-    elif isinstance(info, dict):
-        raise GeoscalerError(
-            f"{path}: the base-colour image {_image_label(doc, info['index'], path)} of "
-            f"material {name!r} could not be decoded. Re-save it as PNG or JPEG."
+    properties = _gltf_properties(doc, raw, path)
+    textures: dict[str, np.ndarray] = {}
+    sources: dict[str, SourceImage] = {}
+    for slot, parent, key in texture_infos(raw):
+        info = parent[key]
+        image_index = _texture_image_index(doc, info["index"])
+        is_base = slot == BASE_COLOR or (
+            slot == f"{SPECULAR_GLOSSINESS}/diffuseTexture" and BASE_COLOR not in textures
         )
-    for slot, keys in TEXTURE_SLOTS.items():  # every map decodes, before any work starts
-        image = getattr(pbr, slot, None) if slot != "baseColorTexture" else None
-        if image is not None:
-            map_info = _get_path(raw, keys)
-            index = map_info.get("index") if isinstance(map_info, dict) else None
-            label = _image_label(doc, index, path) if index is not None else f"{slot} of {name}"
-            decode_texture(image, label, path)
-    if "baseColorFactor" in pbr_json:
-        factor = np.asarray(pbr_json["baseColorFactor"], dtype=np.float32)
-    elif pbr.baseColorFactor is not None:
-        factor = (np.asarray(pbr.baseColorFactor, dtype=np.float32) / 255).reshape(4)
-    else:
-        factor = np.ones(4, dtype=np.float32)
-    pbr.name, pbr.baseColorTexture = name, None
-    return Material(name, texture, factor, pbr, _gltf_properties(doc, raw, path))
+        if is_base:
+            _check_base_color_info(info, path, name)
+        image = images.get(image_index)
+        if image is None:
+            if is_base and image_index not in images.missing:
+                raise GeoscalerError(
+                    f"{path}: the base-colour texture of material {name!r} shows no image. "
+                    "Assign an image to it and re-export."
+                )
+            _remove_info(properties, slot)
+            continue
+        textures[slot], sources[slot] = image.pixels, image
+    base = textures.pop(BASE_COLOR, None)
+    pbr_json = raw.get("pbrMetallicRoughness", {})
+    factor = pbr_json.get("baseColorFactor")
+    gloss = f"{SPECULAR_GLOSSINESS}/diffuseTexture"
+    if base is None and gloss in textures:  # the archived workflow's diffuse map
+        base, sources[BASE_COLOR] = textures[gloss], sources[gloss]
+        if factor is None:
+            factor = raw["extensions"][SPECULAR_GLOSSINESS].get("diffuseFactor")
+    factor = np.ones(4, np.float32) if factor is None else np.asarray(factor, np.float32)
+    return Material(name, base, factor, properties, textures, sources)
 
 
 def _check_base_color_info(info: dict, path: Path, name: str) -> None:
@@ -301,32 +315,33 @@ def _check_base_color_info(info: dict, path: Path, name: str) -> None:
 
 
 def _gltf_properties(doc: dict, raw: dict, path: Path) -> dict[str, Any]:
-    """The material JSON with each texture index replaced by that texture's sampler."""
+    """The material JSON with each texture index replaced by that texture's sampler. An
+    extension that refers to textures elsewhere than in its ``...Texture`` fields is left
+    out, with a warning."""
     properties = copy.deepcopy(raw)
     properties.pop("name", None)
-    for keys in TEXTURE_SLOTS.values():
-        info = _get_path(properties, keys)
-        if isinstance(info, dict) and "index" in info:
-            texture = doc.get("textures", [])[info.pop("index")]
-            if "sampler" in texture:
-                info["sampler"] = copy.deepcopy(doc["samplers"][texture["sampler"]])
+    for _, parent, key in list(texture_infos(properties)):
+        texture = doc.get("textures", [])[parent[key].pop("index")]
+        if "sampler" in texture:
+            parent[key]["sampler"] = copy.deepcopy(doc["samplers"][texture["sampler"]])
     extensions = properties.get("extensions", {})
     for key in [k for k, v in extensions.items() if _has_texture_reference(v)]:
         warnings.warn(
-            f"{path}: material extension {key} refers to textures GeoScaler does not carry; "
-            "it is left out of saved files.",
+            f"{path}: material extension {key} refers to textures in a way GeoScaler does "
+            "not read; it is left out of saved files.",
             stacklevel=6,
         )
         del extensions[key]
     return properties
 
 
-def _get_path(tree: dict, keys: tuple[str, ...]) -> Any:
-    for key in keys:
-        if not isinstance(tree, dict):
-            return None
-        tree = tree.get(key)
-    return tree
+def _remove_info(properties: dict, slot: str) -> None:
+    """Drop a slot's texture-info object (its image is missing)."""
+    *parents, key = slot_path(slot)
+    tree = properties
+    for name in parents:
+        tree = tree.get(name, {})
+    tree.pop(key, None)
 
 
 def _has_texture_reference(value: Any) -> bool:
@@ -335,158 +350,3 @@ def _has_texture_reference(value: Any) -> bool:
     if isinstance(value, list):
         return any(_has_texture_reference(v) for v in value)
     return False
-
-
-# ----------------------------------------------------------------------------- writing
-
-
-class _BinaryBuffer:
-    """Accumulates buffer views and accessors of one glTF buffer."""
-
-    def __init__(self) -> None:
-        self.data = bytearray()
-        self.views: list[dict] = []
-        self.accessors: list[dict] = []
-
-    def view(self, blob: bytes, target: int | None = None) -> int:
-        """Add ``blob`` as a 4-byte aligned buffer view; return its index."""
-        self.data += b"\x00" * (-len(self.data) % 4)
-        view = {"buffer": 0, "byteOffset": len(self.data), "byteLength": len(blob)}
-        if target is not None:
-            view["target"] = target
-        self.data += blob
-        self.views.append(view)
-        return len(self.views) - 1
-
-    def accessor(self, array: np.ndarray, kind: str, target: int, bounds: bool = False) -> int:
-        """Add ``array`` ``(N, K)`` float32 or ``(N,)`` uint32 as an accessor of type ``kind``
-        (``"VEC3"``, ``"SCALAR"``...) in a view for ``target``; return the accessor index."""
-        component = UNSIGNED_INT if array.dtype == np.uint32 else FLOAT
-        accessor = {
-            "bufferView": self.view(np.ascontiguousarray(array).tobytes(), target),
-            "componentType": component,
-            "count": len(array),
-            "type": kind,
-        }
-        if bounds:
-            accessor["min"] = array.min(axis=0).tolist()
-            accessor["max"] = array.max(axis=0).tolist()
-        self.accessors.append(accessor)
-        return len(self.accessors) - 1
-
-
-def gltf_files(
-    mesh: TexturedMesh, used: list[int], images: list[ImageOut], slots: dict, path: Path
-) -> dict[str, bytes]:
-    """The files of ``mesh`` saved as ``path``: PNG maps, the .bin and the .gltf last, or the
-    .glb alone (images in its binary chunk).
-
-    ``used`` are the materials that faces use, ``images`` the maps to write and ``slots``
-    which image each ``(material, slot)`` shows (see :mod:`geoscaler.io.save`).
-    """
-    binary = path.suffix.lower() == ".glb"
-    buffer = _BinaryBuffer()
-    positions = mesh.positions.astype(np.float32)
-    attributes = {
-        "POSITION": buffer.accessor(positions, "VEC3", ARRAY_BUFFER, bounds=True),
-        "NORMAL": buffer.accessor(mesh.normals.astype(np.float32), "VEC3", ARRAY_BUFFER),
-        "TEXCOORD_0": buffer.accessor(_gltf_uvs(mesh.uvs), "VEC2", ARRAY_BUFFER),
-    }
-    primitives = []  # mode left out: TRIANGLES
-    for k, m in enumerate(used):
-        indices = mesh.faces[mesh.face_material == m].astype(np.uint32).ravel()
-        accessor = buffer.accessor(indices, "SCALAR", ELEMENT_ARRAY_BUFFER)
-        primitives.append({"attributes": attributes, "indices": accessor, "material": k})
-    files: dict[str, bytes] = {}
-    image_json = []
-    for image in images:
-        png = image.png(path.suffix.lower())
-        if binary:
-            image_json.append({"bufferView": buffer.view(png), "mimeType": "image/png"})
-        else:
-            files[image.name] = png
-            image_json.append({"uri": urllib.parse.quote(image.name), "mimeType": "image/png"})
-    doc = _gltf_document(mesh, used, slots, primitives, image_json, path.stem)
-    doc["accessors"], doc["bufferViews"] = buffer.accessors, buffer.views
-    doc["buffers"] = [{"byteLength": len(buffer.data)}]
-    if binary:
-        files[path.name] = _pack_glb(doc, bytes(buffer.data))
-        return files
-    doc["buffers"][0]["uri"] = urllib.parse.quote(path.stem + ".bin")
-    files[path.stem + ".bin"] = bytes(buffer.data)
-    files[path.name] = json.dumps(doc, indent=1).encode()
-    return files
-
-
-def _gltf_uvs(uvs: np.ndarray) -> np.ndarray:
-    """OpenGL UVs to glTF's (v down from the top of the image), ``(V, 2)`` float32."""
-    out = np.asarray(uvs, dtype=np.float32).copy()
-    out[:, 1] = 1.0 - out[:, 1]
-    return out
-
-
-def _gltf_document(
-    mesh: TexturedMesh, used: list[int], slots: dict, primitives: list, images: list, stem: str
-) -> dict:
-    textures: list[dict] = []
-    samplers: list[dict] = []
-    materials = []
-    for m in used:
-        material = _gltf_material_json(mesh.materials[m], m, slots, textures, samplers)
-        materials.append(material)
-    doc: dict[str, Any] = {
-        "asset": {"version": "2.0", "generator": "GeoScaler"},
-        "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0, "name": stem}],
-        "meshes": [{"name": stem, "primitives": primitives}],
-        "materials": materials,
-    }
-    for key, value in (("textures", textures), ("samplers", samplers), ("images", images)):
-        if value:
-            doc[key] = value
-    used_extensions = sorted(_extension_names(materials))
-    if used_extensions:
-        doc["extensionsUsed"] = used_extensions
-    return doc
-
-
-def _gltf_material_json(
-    material: Material, m: int, slots: dict, textures: list, samplers: list
-) -> dict:
-    """The material's saved properties with texture slots pointing at the written images."""
-    out = copy.deepcopy(material.properties)
-    out["name"] = material.name
-    pbr = out.setdefault("pbrMetallicRoughness", {})
-    pbr["baseColorFactor"] = [float(x) for x in material.base_color_factor]
-    for slot, keys in TEXTURE_SLOTS.items():
-        parent = out if len(keys) == 1 else out.setdefault(keys[0], {})
-        info = parent.pop(keys[-1], None)
-        if (m, slot) not in slots:
-            continue
-        info = dict(info) if isinstance(info, dict) else {}
-        sampler = info.pop("sampler", None)
-        texture = {"source": slots[(m, slot)]}
-        if sampler is not None:
-            if sampler not in samplers:
-                samplers.append(sampler)
-            texture["sampler"] = samplers.index(sampler)
-        if texture not in textures:
-            textures.append(texture)
-        info["index"] = textures.index(texture)
-        parent[keys[-1]] = info
-    return out
-
-
-def _extension_names(value: Any) -> set[str]:
-    """Names of every ``extensions`` entry inside a JSON value."""
-    names: set[str] = set()
-    if isinstance(value, dict):
-        if isinstance(value.get("extensions"), dict):
-            names.update(value["extensions"])
-        for item in value.values():
-            names |= _extension_names(item)
-    elif isinstance(value, list):
-        for item in value:
-            names |= _extension_names(item)
-    return names

@@ -40,7 +40,15 @@ _ARRAYS = (
     "meshes", "nodes", "samplers", "scenes", "skins", "textures",
 )  # fmt: skip
 _INDEX_TYPES = {5121: np.uint8, 5123: np.uint16, 5125: np.uint32}
-_UV_TYPES = {5126, 5121, 5123}
+_ATTRIBUTE_FORMATS = {
+    "POSITION": ({"VEC3"}, {5126}, "VEC3 of FLOAT"),
+    "NORMAL": ({"VEC3"}, {5126, 5120, 5122}, "VEC3 of FLOAT or signed"),
+    "TANGENT": ({"VEC4"}, {5126, 5120, 5122}, "VEC4 of FLOAT or signed"),
+    "TEXCOORD_0": ({"VEC2"}, {5126, 5121, 5123}, "VEC2 of FLOAT or unsigned"),
+    "TEXCOORD_1": ({"VEC2"}, {5126, 5121, 5123}, "VEC2 of FLOAT or unsigned"),
+    "COLOR_0": ({"VEC3", "VEC4"}, {5126, 5121, 5123}, "VEC3 or VEC4 of FLOAT or unsigned"),
+}
+"""The attributes GeoScaler reads: accessor types, component types and how to say them."""
 _FILTERS = {9728, 9729, 9984, 9985, 9986, 9987}
 _WRAPS = {33071, 33648, 10497}
 _ALPHA_MODES = {"OPAQUE", "MASK", "BLEND"}
@@ -234,11 +242,17 @@ def _check_material(material: dict, path: Path, where: str, ref: _Refs) -> None:
         ref.numbers([material["alphaCutoff"]], 1, f"{where}.alphaCutoff", 0)
     ref.enum(material, "alphaMode", _ALPHA_MODES, where)
     ref.enum(material, "doubleSided", {True, False}, where)
-    for keys in _TEXTURE_INFOS:
-        info = pbr.get(keys[1]) if len(keys) == 2 else material.get(keys[0])
+    infos = [
+        (f"{where}.{keys[-1]}", pbr.get(keys[1]) if len(keys) == 2 else material.get(keys[0]))
+        for keys in _TEXTURE_INFOS
+    ]
+    for name, extension in _dict(material.get("extensions", {}), path, where):
+        for key, value in extension.items() if isinstance(extension, dict) else ():
+            if key.endswith("Texture"):
+                infos.append((f"{where}.extensions.{name}.{key}", value))
+    for here, info in infos:
         if info is None:
             continue
-        here = f"{where}.{keys[-1]}"
         if not isinstance(info, dict):
             raise _refuse(path, here, "is not a texture object")
         ref.index(info.get("index"), "textures", f"{here}.index")
@@ -265,7 +279,7 @@ def buffer_data(doc: dict, path: Path, root: Path, chunk: bytes | None) -> list[
         elif not isinstance(uri, str):
             raise _refuse(path, f"buffers[{b}].uri", f"is {uri!r}, not a string")
         elif uri.startswith("data:"):
-            data.append(_data_uri(uri, path, f"buffers[{b}].uri"))
+            data.append(data_uri_bytes(uri, path, f"buffers[{b}].uri"))
         else:
             from urllib.parse import unquote
 
@@ -274,7 +288,7 @@ def buffer_data(doc: dict, path: Path, root: Path, chunk: bytes | None) -> list[
     return data
 
 
-def _data_uri(uri: str, path: Path, where: str) -> bytes:
+def data_uri_bytes(uri: str, path: Path, where: str) -> bytes:
     header, _, payload = uri.partition(",")
     if not header.endswith(";base64"):
         raise _refuse(path, where, "is a data URI that is not base64")
@@ -332,16 +346,14 @@ def _check_primitive(
     attributes, accessors = primitive["attributes"], doc["accessors"]
     if "POSITION" not in attributes:
         raise _refuse(path, where, "has no POSITION attribute")
-    reads = {f"attributes.{k}": v for k, v in attributes.items() if k in ("POSITION", "NORMAL")}
-    reads.update({f"attributes.{k}": v for k, v in attributes.items() if k.startswith("TEXCOORD")})
+    reads = {f"attributes.{k}": v for k, v in attributes.items() if k in _ATTRIBUTE_FORMATS}
     for name, a in reads.items():
         _accessor_bytes(doc, path, a, f"{where}.{name}")
+        kinds, components, words = _ATTRIBUTE_FORMATS[name.partition(".")[2]]
+        accessor = accessors[a]
+        if accessor["type"] not in kinds or accessor["componentType"] not in components:
+            raise _refuse(path, f"{where}.{name}", f"is not {words}")
     position = accessors[attributes["POSITION"]]
-    if (position["type"], position["componentType"]) != ("VEC3", 5126):
-        raise _refuse(path, f"{where}.attributes.POSITION", "is not VEC3 of FLOAT")
-    uv = accessors[attributes["TEXCOORD_0"]] if "TEXCOORD_0" in attributes else None
-    if uv is not None and (uv["type"] != "VEC2" or uv["componentType"] not in _UV_TYPES):
-        raise _refuse(path, f"{where}.attributes.TEXCOORD_0", "is not VEC2 of FLOAT or unsigned")
     counts = {accessors[a]["count"] for a in reads.values()}
     if len(counts) > 1:
         raise _refuse(path, f"{where}.attributes", f"have different counts {sorted(counts)}")

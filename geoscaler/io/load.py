@@ -17,16 +17,20 @@ def load_mesh(path: str | Path) -> TexturedMesh:
     """Load an OBJ (+ MTL), glTF or GLB file as one :class:`TexturedMesh`.
 
     Scene-graph transforms are applied (mirroring ones flip the winding back to CCW), every
-    part is joined, vertices are welded by exact (position, UV) and points by exact position.
-    Normals come from the file where it has them, else they are area-weighted over the welded
-    points. Only materials used by faces are kept, grouped in file order, faces sorted by
-    material. Only files inside the mesh's folder are read.
+    part is joined, vertices are welded by exact (position, UV, TANGENT, COLOR_0, TEXCOORD_1)
+    and points by exact position. Normals come from the file where it has them, else they are
+    area-weighted over the welded points. Only materials used by faces are kept, grouped in
+    file order, faces sorted by material. Every texture map is decoded, each image once: the
+    slots and materials that show one image share one read-only array
+    (:meth:`geoscaler.mesh.TexturedMesh.images`). Only files inside the mesh's folder are read.
 
     Raises
     ------
     GeoscalerError
         Missing, unreadable or corrupt file, unsupported format, a referenced file missing or
-        outside the mesh's folder, no UVs on textured faces, no base-colour texture at all.
+        outside the mesh's folder, no UVs on textured faces, no base-colour texture at all;
+        what GeoScaler could not write back (animations, skins, morph targets, vertex
+        attributes other than POSITION, NORMAL, TANGENT, TEXCOORD_0/1 and COLOR_0).
     """
     path = Path(path)
     suffix = check_suffix(path)

@@ -1,10 +1,12 @@
-"""Wavefront OBJ: the OBJ + MTL reader and the OBJ + MTL + PNG writer.
+"""Wavefront OBJ: the OBJ + MTL reader and the OBJ + MTL + images writer.
 
-Reading: the MTL libraries are parsed here (colours, dissolve, the base-colour, normal and
-emissive maps, each resolved inside the mesh's folder); trimesh reads the geometry and groups
-faces by material name. Writing: MTL holds base colour, normal and emissive maps
-(:data:`MTL_SLOT_KEYWORDS`); ``map_Kd`` is the colour, so a base-colour factor other than 1 is
-baked into the written texture by :mod:`geoscaler.io.save`.
+Reading: the MTL libraries are parsed here (colours, dissolve, every map of
+:data:`geoscaler.io.slots.MTL_MAPS` with its options, other scalar statements), each map
+resolved inside the mesh's folder and decoded once however many materials show it; trimesh
+reads the geometry and groups faces by material name. Writing: MTL holds base colour, normal
+and emissive maps and its own (``map_Ks``, ``map_Ns``, ``map_d``...), each with the keyword
+and options it was read with; ``map_Kd`` is the colour, so a base-colour factor other than 1
+is baked into the written texture by :mod:`geoscaler.io.save`.
 """
 
 from __future__ import annotations
@@ -21,11 +23,12 @@ import numpy as np
 import trimesh
 
 from geoscaler.errors import GeoscalerError
-from geoscaler.mesh import Material, TexturedMesh
+from geoscaler.mesh import BASE_COLOR, Material, SourceImage, TexturedMesh
 
 from .assemble import MaterialBuilder, Part, scene_parts
-from .images import decode_texture, open_image
+from .images import open_image, source_image
 from .paths import ConstantResolver, resolve_reference
+from .slots import MTL_KEYWORDS, MTL_MAPS, MTL_PREFIX, MTL_PROPERTIES
 
 if TYPE_CHECKING:
     from .save import ImageOut
@@ -42,17 +45,14 @@ class _MtlEntry:
     diffuse: tuple[float, float, float] | None = None
     dissolve: float | None = None
     emissive: tuple[float, float, float] | None = None
-    maps: dict[str, Path] = field(default_factory=dict)
+    maps: dict[str, tuple[Path, str]] = field(default_factory=dict)  # keyword: (file, options)
+    statements: list[str] = field(default_factory=list)
 
 
-# MTL keywords of the maps GeoScaler keeps, by slot; the first one found wins.
-_MTL_MAPS = {
-    "map_kd": "baseColorTexture",
-    "norm": "normalTexture",
-    "map_bump": "normalTexture",
-    "bump": "normalTexture",
-    "map_ke": "emissiveTexture",
-}
+_MTL_KEYWORDS = {keyword.lower(): keyword for keyword in MTL_MAPS}
+# Scalar statements written back as they were read (Kd, Ke and d are read; Tr is ignored).
+_KEPT_STATEMENTS = {"ka", "ks", "ns", "ni", "illum", "tf", "pr", "pm", "ps", "pc", "pcr"}
+_KEPT_STATEMENTS |= {"aniso", "anisor", "sharpness"}
 # Options of MTL map statements and how many values they take (-o/-s/-t: up to three).
 _MTL_OPTIONS = {
     "-blendu": 1, "-blendv": 1, "-boost": 1, "-mm": 2, "-o": 3, "-s": 3, "-t": 3,
@@ -88,8 +88,9 @@ def load_obj(path: Path) -> tuple[list[Part], list[MaterialBuilder], list[Path]]
     resolver = ConstantResolver(names_only.encode())
     scene = trimesh.load_scene(io.BytesIO(data), file_type="obj", resolver=resolver, process=False)
     parts = scene_parts(scene, _obj_material_index)
-    builders = [lambda e=entry: _obj_material(e) for entry in ordered]
-    files = [path.resolve(), *libraries, *(p for e in ordered for p in e.maps.values())]
+    decoded: dict[Path, tuple[SourceImage, bool]] = {}  # per file: its image, whether grey
+    builders = [lambda e=entry: _obj_material(e, decoded) for entry in ordered]
+    files = [path.resolve(), *libraries, *(f for e in ordered for f, _ in e.maps.values())]
     return parts, builders, files
 
 
@@ -182,6 +183,8 @@ def _parse_mtl(library: Path, root: Path) -> list[_MtlEntry]:
         key, rest = words[0].lower(), words[1].strip()
         if key == "newmtl":
             entries.append(_MtlEntry(name=" ".join(rest.split()), owner=library))
+        elif entries and key in _KEPT_STATEMENTS:
+            entries[-1].statements.append(f"{words[0]} {rest}")
         elif entries:
             _read_mtl_statement(entries[-1], key, rest, root)
     return entries
@@ -203,16 +206,19 @@ def _read_mtl_statement(entry: _MtlEntry, key: str, rest: str, root: Path) -> No
             entry.emissive = value
         else:
             entry.dissolve = None if value is None else value[0]
-    elif key in _MTL_MAPS and _MTL_MAPS[key] not in entry.maps:
-        slot, name = _MTL_MAPS[key], _mtl_map_file(rest)
+    elif key in _MTL_KEYWORDS and _MTL_KEYWORDS[key] not in entry.maps:
+        keyword, (options, name) = _MTL_KEYWORDS[key], _mtl_map_file(rest)
         base = entry.owner.parent
-        if slot == "baseColorTexture":
-            entry.maps[slot] = resolve_reference(name, base, root, entry.owner, "texture")
+        if keyword == "map_Kd":
+            file = resolve_reference(name, base, root, entry.owner, "texture")
+            entry.maps[keyword] = (file, options)
             return
         try:
-            entry.maps[slot] = resolve_reference(name, base, root, entry.owner, "texture")
+            file = resolve_reference(name, base, root, entry.owner, "texture")
         except GeoscalerError as exc:
             warnings.warn(f"{exc} The map is skipped.", stacklevel=6)
+            return
+        entry.maps[keyword] = (file, options)
 
 
 def _mtl_color(rest: str) -> tuple[float, float, float] | None:
@@ -226,8 +232,8 @@ def _mtl_color(rest: str) -> tuple[float, float, float] | None:
     return (values[0], values[0], values[0]) if len(values) < 3 else tuple(values)
 
 
-def _mtl_map_file(rest: str) -> str:
-    """The file name of an MTL map statement, after its options (names may contain spaces)."""
+def _mtl_map_file(rest: str) -> tuple[str, str]:
+    """The options and the file name of an MTL map statement (names may contain spaces)."""
     words = rest.split()
     i = 0
     while i < len(words) and words[i].lower() in _MTL_OPTIONS:
@@ -238,7 +244,7 @@ def _mtl_map_file(rest: str) -> str:
                 i, count = i + 1, count - 1
         else:
             i += count
-    return " ".join(words[i:])
+    return " ".join(words[:i]), " ".join(words[i:])
 
 
 def _is_number(word: str) -> bool:
@@ -249,60 +255,65 @@ def _is_number(word: str) -> bool:
     return True
 
 
-def _obj_material(entry: _MtlEntry) -> Material:
-    """Decode an MTL entry's maps; with ``map_Kd`` the texture is the colour (factor 1)."""
+def _obj_material(entry: _MtlEntry, decoded: dict[Path, tuple[SourceImage, bool]]) -> Material:
+    """Decode an MTL entry's maps; with ``map_Kd`` the texture is the colour (factor 1).
+
+    A ``bump``/``map_bump``/``norm`` map in colour is the normal map (the first one wins); in
+    grey it is a height map, kept as ``"mtl:" + keyword``, as is every map glTF has no slot
+    for. ``properties`` gets ``emissiveFactor`` (Ke) and, under ``"mtl"``, each map's keyword
+    and options and the other statements, so that saving as OBJ writes them back.
+    """
+    textures: dict[str, np.ndarray] = {}
+    sources: dict[str, SourceImage] = {}
+    keywords: dict[str, str] = {}
+    options: dict[str, str] = {}
+    for keyword, (file, option) in entry.maps.items():
+        if file not in decoded:
+            image, data = open_image(file, entry.owner)
+            grey = image.mode not in ("RGB", "RGBA", "P", "PA")
+            decoded[file] = source_image(image, data, str(file), entry.owner, file.name), grey
+        source, grey = decoded[file]
+        slot = MTL_MAPS[keyword]
+        if slot == "normalTexture" and (grey or slot in textures):
+            slot = MTL_PREFIX + keyword  # a height map, or a second normal map
+        if slot in textures:
+            continue
+        textures[slot], sources[slot] = source.pixels, source
+        keywords[slot], options[slot] = keyword, option
     alpha = 1.0 if entry.dissolve is None else entry.dissolve
-    texture = None
-    if "baseColorTexture" in entry.maps:
-        image = open_image(entry.maps["baseColorTexture"], entry.owner)
-        texture = decode_texture(image, str(entry.maps["baseColorTexture"]), entry.owner)
+    texture = textures.pop(BASE_COLOR, None)
+    if texture is not None:
         factor = (1.0, 1.0, 1.0, alpha)
     else:
         factor = (*(entry.diffuse or (1.0, 1.0, 1.0)), alpha)
-    extra = {
-        slot: open_image(file, entry.owner)
-        for slot, file in entry.maps.items()
-        if slot != "baseColorTexture"
-    }
-    normal = extra.get("normalTexture")
-    if normal is not None and normal.mode not in ("RGB", "RGBA", "P"):
-        warnings.warn(
-            f"{entry.owner}: {entry.maps['normalTexture'].name} of material {entry.name!r} is "
-            "a grey bump (height) map, not a normal map; it is not carried over.",
-            stacklevel=5,
-        )
-        del extra["normalTexture"]
-    for slot, image in extra.items():  # every map decodes, before any work starts
-        decode_texture(image, str(entry.maps[slot]), entry.owner)
-    source = trimesh.visual.material.PBRMaterial(
-        name=entry.name, emissiveFactor=entry.emissive, **extra
-    )
-    properties = {slot: {} for slot in extra}
+    properties: dict[str, Any] = {}
     if entry.emissive is not None:
         properties["emissiveFactor"] = list(entry.emissive)
-    return Material(entry.name, texture, np.array(factor, np.float32), source, properties)
+    record = {"keywords": keywords, "options": options, "statements": entry.statements}
+    properties[MTL_PROPERTIES] = record
+    factor_array = np.array(factor, np.float32)
+    return Material(entry.name, texture, factor_array, properties, textures, sources)
 
 
 # ----------------------------------------------------------------------------- writing
 
-MTL_SLOT_KEYWORDS = {
-    "baseColorTexture": "map_Kd",
-    "normalTexture": "norm",
-    "emissiveTexture": "map_Ke",
-}
-"""The map slots MTL can express, and their keywords; other maps are not written to OBJ."""
-
 
 def obj_files(
-    mesh: TexturedMesh, used: list[int], images: list[ImageOut], slots: dict, path: Path
+    mesh: TexturedMesh,
+    used: list[int],
+    images: list[ImageOut],
+    encoded: list[tuple[bytes, str]],
+    slots: dict[tuple[int, str], int],
+    path: Path,
 ) -> dict[str, bytes]:
-    """The files of ``mesh`` saved as ``path``: PNG maps, the MTL library, the OBJ last.
+    """The files of ``mesh`` saved as ``path``: image files, the MTL library, the OBJ last.
 
-    ``used`` are the materials that faces use, ``images`` the maps to write and ``slots``
-    which image each ``(material, slot)`` shows (see :mod:`geoscaler.io.save`).
+    ``used`` are the materials that faces use, ``images`` the images to write with their
+    ``encoded`` bytes, and ``slots`` which image each ``(material, slot)`` shows (see
+    :mod:`geoscaler.io.save`).
     """
     names = _unique_names([mesh.materials[m].name for m in used])
-    files = {image.name: image.png(".obj") for image in images}
+    files = {image.name: data for image, (data, _) in zip(images, encoded, strict=True)}
     mtl_name = path.stem + ".mtl"
     files[mtl_name] = _mtl_text(mesh, used, names, images, slots).encode()
     files[path.name] = _obj_text(mesh, used, names, mtl_name).encode()
@@ -338,19 +349,28 @@ def _obj_text(mesh: TexturedMesh, used: list[int], names: list[str], mtl_name: s
 def _mtl_text(
     mesh: TexturedMesh, used: list[int], names: list[str], images: list[ImageOut], slots: dict
 ) -> str:
+    """Each material's colour, dissolve, emission, kept statements, then its maps in slot
+    order, each with the keyword and options it was read with."""
     lines = ["# written by GeoScaler"]
     for m, name in zip(used, names, strict=True):
         material = mesh.materials[m]
+        record = material.properties.get(MTL_PROPERTIES)
+        record = record if isinstance(record, dict) else {}
         factor = np.asarray(material.base_color_factor, dtype=np.float64)
-        textured = (m, "baseColorTexture") in slots
+        textured = (m, BASE_COLOR) in slots
         diffuse = (1.0, 1.0, 1.0) if textured else factor[:3]
         lines += ["", f"newmtl {name}", "Kd {:.9g} {:.9g} {:.9g}".format(*diffuse)]
         if factor[3] != 1:
             lines.append(f"d {factor[3]:.9g}")
-        emissive = getattr(material.source, "emissiveFactor", None)
+        emissive = material.properties.get("emissiveFactor")
         if emissive is not None:
-            lines.append("Ke {:.9g} {:.9g} {:.9g}".format(*np.asarray(emissive).reshape(3)))
-        for slot, keyword in MTL_SLOT_KEYWORDS.items():
-            if (m, slot) in slots:
-                lines.append(f"{keyword} {images[slots[(m, slot)]].name}")
+            lines.append("Ke {:.9g} {:.9g} {:.9g}".format(*np.asarray(emissive, float).ravel()))
+        lines += [str(line) for line in record.get("statements", [])]
+        for (k, slot), image in slots.items():
+            if k != m:
+                continue
+            keyword = record.get("keywords", {}).get(slot)
+            keyword = keyword or MTL_KEYWORDS.get(slot) or slot.removeprefix(MTL_PREFIX)
+            options = record.get("options", {}).get(slot, "")
+            lines.append(" ".join(w for w in (keyword, options, images[image].name) if w))
     return "\n".join(lines) + "\n"

@@ -1,7 +1,7 @@
 """Path safety: which files GeoScaler reads, and which it agrees to write.
 
 Reading: a mesh may only reference files inside its own folder (:func:`resolve_reference`), and
-trimesh reads through resolvers that serve those files and never write.
+trimesh (the OBJ geometry) reads through a resolver that never writes.
 
 Writing: :func:`check_outputs` is the one output-safety check, used by
 :func:`geoscaler.io.save_mesh` and by every command before it starts work. It refuses writing
@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import os
 import tempfile
-import urllib.parse
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -84,18 +83,6 @@ class ReadOnlyResolver(trimesh.resolvers.Resolver):
 
     def keys(self) -> list[str]:
         return []
-
-
-class FolderResolver(ReadOnlyResolver):
-    """Serves only files inside the mesh's folder; glTF URIs are percent-decoded."""
-
-    def __init__(self, owner: Path, root: Path):
-        self.owner, self.root = owner, root
-
-    def get(self, name: str) -> bytes:
-        ref = urllib.parse.unquote(name)
-        target = resolve_reference(ref, self.owner.parent, self.root, self.owner, "file")
-        return target.read_bytes()
 
 
 class ConstantResolver(ReadOnlyResolver):
