@@ -7,7 +7,7 @@ PY := $(VENV)/bin/python
 export MALLOC_MMAP_THRESHOLD_ := 2000000000
 export MALLOC_TRIM_THRESHOLD_ := 20000000000
 
-.PHONY: setup system-packages test demo lint bench bench-app screenshot clean
+.PHONY: setup system-packages validator test demo lint bench bench-app screenshot clean
 
 # The app's tests need EGL (headless OpenGL, Mesa llvmpipe without a GPU) and Xvfb. `make test`
 # installs them when missing and it runs as root (CI); otherwise it says so and those tests skip.
@@ -31,8 +31,25 @@ system-packages:
 	    >/dev/null) || echo "warning: could not install$$missing"; \
 	else echo "note: missing$$missing (not root): the app's GL and GUI tests will skip"; fi
 
+# The Khronos glTF-Validator (npm), pinned, for tests/test_gltf_validator.py: installed into
+# .tools/ (ignored by git) only when missing. Without npm the test says so and fails, without
+# node it skips.
+GLTF_VALIDATOR_VERSION := 2.0.0-dev.3.10
+TOOLS := .tools
+VALIDATOR := $(TOOLS)/node_modules/gltf-validator/package.json
+
+validator: $(VALIDATOR)
+
+$(VALIDATOR):
+	@if command -v npm >/dev/null; then \
+	  echo "installing gltf-validator@$(GLTF_VALIDATOR_VERSION) into $(TOOLS)/"; \
+	  npm install --prefix $(TOOLS) --no-save --no-audit --no-fund --loglevel=error \
+	    gltf-validator@$(GLTF_VALIDATOR_VERSION) >/dev/null \
+	    || echo "warning: could not install gltf-validator"; \
+	else echo "note: npm is missing: the glTF-Validator test cannot run"; fi
+
 # Under xvfb-run the app's tests must run: GEOSCALER_REQUIRE_GL=1 turns their skips into failures.
-test: setup system-packages
+test: setup system-packages validator
 	$(PY) -m ruff check geoscaler app tests benchmarks setup.py
 	if command -v xvfb-run >/dev/null; then \
 	  GEOSCALER_REQUIRE_GL=1 $(XVFB) $(PY) -m pytest -q; \
@@ -53,4 +70,4 @@ screenshot: setup system-packages
 	GEOSCALER_UPDATE_SCREENSHOT=1 $(XVFB) $(PY) -m pytest -q tests/test_app_gui.py
 
 clean:
-	rm -rf $(VENV) *.egg-info .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(TOOLS) *.egg-info .pytest_cache .ruff_cache

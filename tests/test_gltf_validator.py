@@ -1,0 +1,128 @@
+"""What GeoScaler writes passes the Khronos glTF-Validator with 0 errors (issue 15).
+
+The validator is the npm package ``gltf-validator`` that ``make test`` installs into ``.tools/``
+(pinned in the Makefile). One node process validates every file: the built-in demo asset, the
+hand-made asset of ``io_assets`` (TANGENT, COLOR_0, TEXCOORD_1, ``texCoord: 1``,
+``KHR_texture_transform``, ``KHR_materials_clearcoat``, a shared image, JPEG and PNG), each as
+loaded and with its textures changed, as .gltf and .glb, WebP once, and the Poly Haven sofa and
+stool and the WebP cat from ../shared/data when they are there. Skipped only without node.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import DATA_DIR
+from io_assets import rich_gltf
+
+from geoscaler.io import load_mesh, save_mesh
+from geoscaler.mesh import TexturedMesh
+from geoscaler.procedural import demo_mesh
+
+ROOT = Path(__file__).resolve().parents[1]
+VALIDATOR = ROOT / ".tools" / "node_modules" / "gltf-validator"
+SCRIPT = """
+const fs = require("fs"), path = require("path");
+const validator = require(process.env.GLTF_VALIDATOR);
+(async () => {
+  const out = {};
+  for (const file of process.argv.slice(2)) {
+    const report = await validator.validateBytes(new Uint8Array(fs.readFileSync(file)), {
+      uri: path.basename(file), maxIssues: 0, writeTimestamp: false,
+      externalResourceFunction: (uri) => new Promise((resolve, reject) => fs.readFile(
+        path.resolve(path.dirname(file), decodeURIComponent(uri)),
+        (error, data) => error ? reject(error.toString()) : resolve(new Uint8Array(data)))),
+    });
+    out[file] = {errors: report.issues.numErrors, warnings: report.issues.numWarnings,
+                 messages: report.issues.messages};
+  }
+  process.stdout.write(JSON.stringify({version: validator.version(), reports: out}));
+})().catch((error) => { console.error(String(error)); process.exit(1); });
+"""
+DEVELOPMENT = {
+    "sofa": "ph_sofa_03/sofa_03_1k.gltf",
+    "stool": "ph_painted_wooden_stool/painted_wooden_stool_1k.gltf",
+    "cat": "pc_egyptian_cat/cat.glb",
+}
+
+
+def halved(mesh: TexturedMesh) -> TexturedMesh:
+    """Every texture replaced by its every other texel (sharing kept): re-encoded on save."""
+    return mesh.with_images({id(p): np.ascontiguousarray(p[::2, ::2]) for p, _ in mesh.images()})
+
+
+def outputs(folder: Path) -> dict[str, Path]:
+    """Every file to validate, by case name; written into ``folder``."""
+    cases: dict[str, tuple[TexturedMesh, str | None]] = {
+        "demo": (demo_mesh(subdivisions=6, texture_size=64), None),
+    }
+    cases["demo-webp"] = (cases["demo"][0], "webp")
+    rich = load_mesh(rich_gltf(folder / "rich-input"))
+    cases.update({"rich": (rich, None), "rich-halved": (halved(rich), None)})
+    cases["rich-webp"] = (rich, "webp")
+    for name, entry in DEVELOPMENT.items():
+        if (DATA_DIR / entry).is_file():
+            mesh = load_mesh(DATA_DIR / entry)
+            cases.update({name: (mesh, None), f"{name}-halved": (halved(mesh), None)})
+    files = {"rich-input.gltf": folder / "rich-input" / "rich.gltf"}
+    for name, (mesh, image_format) in cases.items():
+        for suffix in (".gltf", ".glb"):
+            (folder / name / suffix[1:]).mkdir(parents=True)
+            path = folder / name / suffix[1:] / f"{name}{suffix}"
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                files[f"{name}{suffix}"] = save_mesh(mesh, path, image_format=image_format)[-1]
+    return files
+
+
+@pytest.fixture(scope="module")
+def reports(tmp_path_factory) -> dict[str, dict]:
+    """The validator's report of every output, one node process for all."""
+    node = shutil.which("node")
+    if node is None:
+        pytest.skip("node is not installed, so the Khronos glTF-Validator (npm) cannot run")
+    if not (VALIDATOR / "package.json").is_file():
+        pytest.fail(
+            f"the glTF-Validator is not installed in {VALIDATOR.parent}: run `make validator` "
+            "(make test does it)"
+        )
+    folder = tmp_path_factory.mktemp("validated")
+    files = outputs(folder)
+    script = folder / "validate.js"
+    script.write_text(SCRIPT)
+    done = subprocess.run(
+        [node, str(script), *map(str, files.values())],
+        capture_output=True,
+        text=True,
+        env={"GLTF_VALIDATOR": str(VALIDATOR), "PATH": ""},
+        timeout=300,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout)
+    print(f"gltf-validator {result['version']}")
+    return {name: result["reports"][str(path)] for name, path in files.items()}
+
+
+CASES = ["rich-input.gltf"] + [
+    f"{name}{suffix}"
+    for name in ["demo", "demo-webp", "rich", "rich-halved", "rich-webp"]
+    + [f"{n}{h}" for n in DEVELOPMENT for h in ("", "-halved")]
+    for suffix in (".gltf", ".glb")
+]
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_output_has_no_validator_errors(reports: dict[str, dict], case: str):
+    if case not in reports:
+        pytest.skip(f"{case}: its development mesh is not in {DATA_DIR}")
+    report = reports[case]
+    errors = [m for m in report["messages"] if m["severity"] == 0]
+    shown = "\n".join(f"{m['code']} at {m.get('pointer', '?')}: {m['message']}" for m in errors)
+    assert report["errors"] == 0, f"{case}: {report['errors']} error(s)\n{shown}"
