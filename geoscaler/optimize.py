@@ -34,10 +34,12 @@ import torch
 from geoscaler.cameras import Camera, sample_training_cameras
 from geoscaler.losses import PerceptualTerm, view_loss
 from geoscaler.render import Renderer
+from geoscaler.soft import SoftSettings
 from geoscaler.texture import fill_gutters, quantize_linear
 from geoscaler.uvmaps import reachable_masks
+from geoscaler.validation import Best as _Best
 from geoscaler.validation import Validation
-from geoscaler.views import ViewCache, ViewSet
+from geoscaler.views import ViewCache, ViewSet, training_views
 
 TRAINING_RANGE = (1.5, 4.2)
 """The loop's default training distances: wider than the protocol's range S on both sides, so
@@ -82,6 +84,9 @@ class OptimizeConfig:
         validate_every: steps between validations on Q (the last step always validates).
         patience: validations without improvement before stopping (None: never).
         seed: seeds the cameras and the view order.
+        training_renderer: what renders the training views, candidate and original alike:
+            ``"exact"`` (the protocol renderer) or ``"soft"`` (the paper's soft rasteriser,
+            :mod:`geoscaler.soft`, with ``soft`` settings). Validation is always exact.
     """
 
     steps: int = 400
@@ -96,6 +101,12 @@ class OptimizeConfig:
     validate_every: int = 50
     patience: int | None = None
     seed: int = 0
+    training_renderer: str = "exact"
+    soft: SoftSettings = field(default_factory=SoftSettings)
+
+    def __post_init__(self) -> None:
+        if self.training_renderer not in ("exact", "soft"):
+            raise ValueError(f"training_renderer: exact or soft, not {self.training_renderer!r}")
 
 
 @dataclass
@@ -390,7 +401,8 @@ def optimize(
     cameras = training_cameras or sample_training_cameras(
         config.pool_views, config.seed, config.distances
     )
-    train = ViewCache(ViewSet(renderer, cameras, eager=False), validation.sizes, keeps_uvs)
+    soft = config.soft if config.training_renderer == "soft" else None
+    train = training_views(renderer, cameras, validation.sizes, keeps_uvs, soft)
     farthest = max(
         camera.distance for views in (cameras, *_set_cameras(validation)) for camera in views
     )
@@ -557,37 +569,3 @@ def _learning_rate_factor(step: int, time_spent: float, config: OptimizeConfig) 
     span = max(config.steps - config.warmup_steps, 1)
     progress = max((step - config.warmup_steps) / span, time_spent)
     return 0.5 * (1 + math.cos(math.pi * min(progress, 1.0)))
-
-
-class _Best:
-    """The best validated candidate so far, by :meth:`Validation.rank`: the best on Q of those
-    that clear the floor, or the one that falls least below it."""
-
-    def __init__(self, validation: Validation):
-        self.validation = validation
-        self.scores: dict[str, float] = {}
-        self.rank = (-math.inf, -math.inf)
-        self.step = -1
-        self.stale = 0
-        self.textures: list[torch.Tensor | None] = []
-        self.uvs: torch.Tensor | None = None
-        self.has_start = False
-
-    @property
-    def psnr(self) -> float:
-        return self.scores.get("Q", -math.inf)
-
-    @property
-    def clears(self) -> bool:
-        return self.rank[0] == 0.0
-
-    def offer(self, scores: dict[str, float], candidate: Candidate, step: int) -> bool:
-        """Keep ``candidate`` (finished, as validated) if it ranks above the best."""
-        self.has_start = self.has_start or step == 0
-        rank = self.validation.rank(scores)
-        if rank <= self.rank:
-            self.stale += 1
-            return False
-        self.textures, self.uvs = candidate
-        self.scores, self.rank, self.step, self.stale = scores, rank, step, 0
-        return True

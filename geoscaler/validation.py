@@ -249,3 +249,43 @@ class Validation:
         started = time.perf_counter()
         evaluate(image[None], reference[None], foreground[None])
         self._metric_seconds = time.perf_counter() - started
+
+
+class Best:
+    """The best validated candidate so far, by :meth:`Validation.rank`: the best on Q of those
+    that clear the floor, or the one that falls least below it (what the optimisation loop
+    keeps)."""
+
+    def __init__(self, validation: Validation):
+        self.validation = validation
+        self.scores: dict[str, float] = {}
+        self.rank = (-math.inf, -math.inf)
+        self.step = -1
+        self.stale = 0
+        self.textures: list[torch.Tensor | None] = []
+        self.uvs: torch.Tensor | None = None
+        self.has_start = False
+
+    @property
+    def psnr(self) -> float:
+        return self.scores.get("Q", -math.inf)
+
+    @property
+    def clears(self) -> bool:
+        return self.rank[0] == 0.0
+
+    def offer(
+        self,
+        scores: dict[str, float],
+        candidate: tuple[list[torch.Tensor | None], torch.Tensor | None],
+        step: int,
+    ) -> bool:
+        """Keep ``candidate`` (finished, as validated) if it ranks above the best."""
+        self.has_start = self.has_start or step == 0
+        rank = self.validation.rank(scores)
+        if rank <= self.rank:
+            self.stale += 1
+            return False
+        self.textures, self.uvs = candidate
+        self.scores, self.rank, self.step, self.stale = scores, rank, step, 0
+        return True

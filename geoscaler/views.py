@@ -6,6 +6,10 @@ G-buffers. A :class:`ViewCache` adds the tap renderer: with the mesh's own UVs a
 fixed weighted sum of texels, so each view's texture taps are found once and a render is one
 gather per material (what training steps, validation and the report's scores use). Candidates
 are scored as they would ship: 8-bit textures, compared with :func:`geoscaler.metrics.evaluate`.
+
+A view set may also be rendered by the paper's soft rasteriser (:class:`geoscaler.soft.
+SoftRenderer`, which mirrors the renderer's methods): :func:`training_views` makes a training
+pool of either kind.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from geoscaler.cameras import Camera, view_set_cameras
 from geoscaler.metrics import evaluate
 from geoscaler.raster import GBuffer
 from geoscaler.render import Renderer
+from geoscaler.soft import SoftRenderer, SoftSettings
 from geoscaler.texture import (
     MipLayout,
     MipTexture,
@@ -41,7 +46,9 @@ class ViewSet:
     adds them one at a time, so that a loop can build its views while it trains.
 
     Args:
-        renderer: the renderer of the mesh under evaluation.
+        renderer: the renderer of the mesh under evaluation, or a soft one (then the
+            "G-buffers" are its :class:`~geoscaler.soft.SoftFragments` and the references
+            are soft renders).
         cameras: the views (e.g. :func:`geoscaler.cameras.validation_cameras`).
         progress: optional callback while the set is built.
         eager: cache every camera now.
@@ -53,7 +60,7 @@ class ViewSet:
 
     def __init__(
         self,
-        renderer: Renderer,
+        renderer: Renderer | SoftRenderer,
         cameras: Sequence[Camera],
         progress: Progress | None = None,
         eager: bool = True,
@@ -278,3 +285,30 @@ def cache_view_set(
     with the texture taps of candidates of ``sizes``: what validation and scoring read."""
     views = ViewSet(renderer, view_set_cameras(distance, renderer.evaluation), progress)
     return ViewCache(views, sizes, with_taps=True)
+
+
+def training_views(
+    renderer: Renderer,
+    cameras: Sequence[Camera],
+    sizes: Sequence[tuple[int, int] | None],
+    with_taps: bool,
+    soft: SoftSettings | None = None,
+) -> ViewCache:
+    """A training pool over ``cameras``, none cached yet.
+
+    Without ``soft``: views of ``renderer`` (with the taps of ``sizes`` when ``with_taps``).
+    With ``soft``: views of a :class:`~geoscaler.soft.SoftRenderer` of the same mesh, device and
+    evaluation, whose references are soft renders of ``renderer``'s reference maps, so that
+    candidate and original are rendered the same way, as the paper trains (a candidate is then
+    rendered in full each time: soft shading has no cached taps).
+    """
+    if soft is None:
+        return ViewCache(ViewSet(renderer, cameras, eager=False), sizes, with_taps)
+    training = SoftRenderer(
+        renderer.mesh,
+        renderer.device,
+        renderer.evaluation,
+        soft,
+        reference=renderer.reference_textures,
+    )
+    return ViewCache(ViewSet(training, cameras, eager=False), sizes, with_taps=False)

@@ -1,5 +1,6 @@
 """The paper's soft rasteriser (geoscaler.soft): SoftRas / PyTorch3D semantics on small analytic
-scenes, its gradients and its bounded-memory machinery against an untiled reference."""
+scenes, its gradients, its bounded-memory machinery against an untiled reference, and the
+training loop's soft option."""
 
 import math
 
@@ -8,9 +9,13 @@ import pytest
 import torch
 
 from geoscaler.cameras import Camera
+from geoscaler.filters import lanczos, output_sizes, reference_textures
 from geoscaler.mesh import Material, TexturedMesh
+from geoscaler.methods.direct import TexelModel
+from geoscaler.optimize import OptimizeConfig, optimize
+from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
-from geoscaler.raster import rasterize
+from geoscaler.raster import GBuffer, rasterize
 from geoscaler.render import Renderer
 from geoscaler.soft import (
     EPS,
@@ -20,6 +25,8 @@ from geoscaler.soft import (
     interpolate,
     soft_rasterize,
 )
+from geoscaler.texture import quantize_linear, texture_to_linear
+from geoscaler.validation import Validation, validation_view_sets
 
 F64 = torch.float64
 DEPTH_RANGE = (1.0, 100.0)
@@ -293,3 +300,56 @@ def test_the_default_settings_are_pytorch3ds():
     assert settings.depth_range == (1.0, 100.0) and settings.supersample is None
     with pytest.raises(ValueError):
         SoftSettings(sigma=0)
+
+
+# ----------------------------------------------------------------------------- training
+
+
+@pytest.fixture(scope="module")
+def scene():
+    mesh = demo_mesh(subdivisions=4, texture_size=64)
+    renderer = Renderer(mesh, "cpu", Evaluation(image_size=32, views=(0, 20, 40)))
+    views = validation_view_sets(renderer, guard_views=1)
+    for view_set in views.values():
+        while view_set.cache_next():
+            pass
+    return mesh, renderer, views
+
+
+def train(scene, renderer_name: str, steps: int = 3):
+    mesh, renderer, views = scene
+    start = lanczos(reference_textures(mesh)[0], 4)
+    model = TexelModel([texture_to_linear(start)])
+    config = OptimizeConfig(
+        steps=steps,
+        pool_views=4,
+        views_per_step=2,
+        validate_every=steps,
+        ssim_weight=0.0,
+        training_renderer=renderer_name,
+        soft=SoftSettings(sigma=1e-3),
+    )
+    validation = Validation(views, output_sizes(mesh, 4))
+    return optimize(renderer, model, config, validation), validation
+
+
+def test_soft_training_trains_and_validates_on_the_exact_renderer(scene):
+    result, validation = train(scene, "soft")
+    assert result.steps == 3 and result.training_views == 4
+    assert all(math.isfinite(loss["loss"]) and loss["loss"] > 0 for loss in result.history)
+    # validation stayed exact: its views are G-buffers, and its figure for what ships is the
+    # loop's own
+    assert all(isinstance(g, GBuffer) for s in validation.sets.values() for g in s.views.gbuffers)
+    shipped = [quantize_linear(t) for t in result.textures]
+    assert validation.psnr(shipped, None)["Q"] == pytest.approx(result.best_psnr, abs=1e-4)
+
+
+def test_soft_training_moves_the_texture_differently_from_exact_training(scene):
+    soft, _ = train(scene, "soft", steps=2)
+    exact, _ = train(scene, "exact", steps=2)
+    assert soft.history[0]["loss"] != pytest.approx(exact.history[0]["loss"], rel=1e-3)
+
+
+def test_an_unknown_training_renderer_is_refused():
+    with pytest.raises(ValueError, match="exact or soft"):
+        OptimizeConfig(training_renderer="nvdiffrast")
