@@ -180,9 +180,24 @@ def test_the_writer_and_the_commands_refuse_with_the_same_words(tmp_path: Path):
 def test_gltf_enums_are_named(tmp_path: Path):
     save_mesh(two_material_mesh(), tmp_path / "out.gltf")
     doc = json.loads((tmp_path / "out.gltf").read_text())
-    assert {a["componentType"] for a in doc["accessors"]} == {gltf.FLOAT, gltf.UNSIGNED_INT}
+    assert {a["componentType"] for a in doc["accessors"]} == {gltf.FLOAT, gltf.UNSIGNED_SHORT}
     assert [v["target"] for v in doc["bufferViews"]] == [gltf.ARRAY_BUFFER] * 3 + [
         gltf.ELEMENT_ARRAY_BUFFER
     ] * 2
     assert all(p.get("mode", gltf.TRIANGLES) == gltf.TRIANGLES
                for p in doc["meshes"][0]["primitives"])  # fmt: skip
+
+
+@pytest.mark.parametrize(("count", "component"), [(65534, 5123), (65535, 5125)])
+def test_indices_are_16_bit_where_the_vertices_allow(tmp_path: Path, count: int, component: int):
+    """Index 65535 is the primitive-restart value glTF forbids in 16-bit indices."""
+    mesh = two_material_mesh()
+    pad = count - len(mesh.positions)
+    mesh.positions = np.concatenate([mesh.positions, np.zeros((pad, 3), np.float32)])
+    mesh.uvs = np.concatenate([mesh.uvs, np.zeros((pad, 2), np.float32)])
+    mesh.normals = np.concatenate([mesh.normals, np.tile(np.float32([0, 0, 1]), (pad, 1))])
+    mesh.vertex_to_point = np.concatenate([mesh.vertex_to_point, np.zeros(pad, np.int64)])
+    save_mesh(mesh, tmp_path / "out.gltf")
+    doc = json.loads((tmp_path / "out.gltf").read_text())
+    indices = [doc["accessors"][p["indices"]] for p in doc["meshes"][0]["primitives"]]
+    assert [a["componentType"] for a in indices] == [component, component]

@@ -1,7 +1,8 @@
 """glTF 2.0 writing: one mesh, one primitive per material, every map and material property.
 
 The primitives share the vertex accessors (POSITION, NORMAL, TEXCOORD_0 and the mesh's extra
-attributes: TANGENT, COLOR_0, TEXCOORD_1). Each distinct image is written once, as a file
+attributes: TANGENT, COLOR_0, TEXCOORD_1, all float32); indices are 16-bit where the vertices
+allow, else 32-bit. Each distinct image is written once, as a file
 beside a .gltf or in the binary chunk of a .glb, and every slot of every material that shows
 it points at it; texture-info fields (``texCoord``, ``scale``, ``KHR_texture_transform``...)
 and samplers are written back, extension slots inside their extension objects. WebP images are
@@ -20,7 +21,14 @@ import numpy as np
 
 from geoscaler.mesh import Material, TexturedMesh
 
-from .gltf import ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, FLOAT, UNSIGNED_INT, pack_glb
+from .gltf import (
+    ARRAY_BUFFER,
+    ELEMENT_ARRAY_BUFFER,
+    FLOAT,
+    UNSIGNED_INT,
+    UNSIGNED_SHORT,
+    pack_glb,
+)
 from .slots import MTL_PROPERTIES, slot_path, texture_infos
 
 if TYPE_CHECKING:
@@ -48,9 +56,10 @@ class _BinaryBuffer:
         return len(self.views) - 1
 
     def accessor(self, array: np.ndarray, kind: str, target: int, bounds: bool = False) -> int:
-        """Add ``array`` ``(N, K)`` float32 or ``(N,)`` uint32 as an accessor of type ``kind``
-        (``"VEC3"``, ``"SCALAR"``...) in a view for ``target``; return the accessor index."""
-        component = UNSIGNED_INT if array.dtype == np.uint32 else FLOAT
+        """Add ``array`` ``(N, K)`` float32 or ``(N,)`` uint16/uint32 as an accessor of type
+        ``kind`` (``"VEC3"``, ``"SCALAR"``...) in a view for ``target``; return its index."""
+        component = {np.dtype(np.uint16): UNSIGNED_SHORT, np.dtype(np.uint32): UNSIGNED_INT}
+        component = component.get(array.dtype, FLOAT)
         accessor = {
             "bufferView": self.view(np.ascontiguousarray(array).tobytes(), target),
             "componentType": component,
@@ -91,8 +100,9 @@ def gltf_files(
         kind = f"VEC{values.shape[1]}"
         attributes[name] = buffer.accessor(values.astype(np.float32), kind, ARRAY_BUFFER)
     primitives = []  # mode left out: TRIANGLES
+    index_type = np.uint16 if len(mesh.positions) < 65535 else np.uint32  # 65535: restart
     for k, m in enumerate(used):
-        indices = mesh.faces[mesh.face_material == m].astype(np.uint32).ravel()
+        indices = mesh.faces[mesh.face_material == m].astype(index_type).ravel()
         accessor = buffer.accessor(indices, "SCALAR", ELEMENT_ARRAY_BUFFER)
         primitives.append({"attributes": attributes, "indices": accessor, "material": k})
     files: dict[str, bytes] = {}
