@@ -261,6 +261,12 @@ def gltf_cases() -> list[Case]:
         ("buffer-data-broken", "buffers.0.uri", "data:application/octet-stream;base64,@@@",
          "does not decode"),
         ("texcoord-1", f"{pbr}.baseColorTexture.texCoord", 1, "TEXCOORD_1"),
+        ("joints", "meshes.0.primitives.0.attributes.JOINTS_0", 0,
+         "vertex attribute(s) JOINTS_0, which GeoScaler cannot keep"),
+        ("morph-targets", "meshes.0.primitives.0.targets", [{"POSITION": 0}],
+         "has morph targets (shape keys), which GeoScaler cannot keep"),
+        ("animations", "animations", [{"channels": [], "samplers": []}],
+         "has 1 animation(s), which GeoScaler cannot keep"),
     ]  # fmt: skip
     for name, keys, value, expect in edits:
 

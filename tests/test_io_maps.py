@@ -32,7 +32,14 @@ from io_assets import (
     smooth,
     written_images,
 )
-from mesh_support import QUAD_OBJ, TEXTURE, png_bytes, two_material_mesh, write_obj_asset
+from mesh_support import (
+    QUAD_OBJ,
+    TEXTURE,
+    png_bytes,
+    two_material_mesh,
+    write_gltf,
+    write_obj_asset,
+)
 from PIL import Image
 
 from geoscaler.errors import GeoscalerError
@@ -243,6 +250,20 @@ def test_the_encoder_rules():
     np.testing.assert_array_equal(decoded(png), grey)
     with pytest.raises(ValueError, match="image_format"):
         encoded_image(rgb, None, "gif")
+
+
+def test_specular_glossiness_diffuse_is_the_base_colour_and_written_as_both(tmp_path: Path):
+    gloss = "KHR_materials_pbrSpecularGlossiness"
+    material = {"extensions": {gloss: {"diffuseTexture": {"index": 0},
+                                       "diffuseFactor": [1, 0.5, 0.25, 1]}}}  # fmt: skip
+    mesh = load_mesh(write_gltf(tmp_path / "in", np.zeros((3, 2)), material=material))
+    loaded = mesh.materials[0]
+    assert loaded.base_color_texture is loaded.maps[f"{gloss}/diffuseTexture"]
+    np.testing.assert_array_equal(loaded.base_color_factor, np.float32([1, 0.5, 0.25, 1]))
+    save_mesh(mesh, tmp_path / "out.gltf")
+    written = json.loads((tmp_path / "out.gltf").read_text())["materials"][0]
+    assert written["pbrMetallicRoughness"]["baseColorTexture"] == {"index": 0}
+    assert written["extensions"][gloss]["diffuseTexture"] == {"index": 0}
 
 
 # ----------------------------------------------------------------------------- OBJ
