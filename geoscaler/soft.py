@@ -33,14 +33,13 @@ of PyTorch3D's cameras. Because the background's weight is only ``eps``, a sampl
 blur radius of the mesh shows its colour nearly in full: the colour silhouette grows by the blur
 distance and the soft one is ``alpha``, as in PyTorch3D.
 
-Bounded memory: candidates are found per tile of ``TILE x TILE`` samples from triangle screen
-boxes (grown by the blur radius) binned into tiles; tiles are evaluated in chunks of at most
-``CHUNK_ENTRIES`` (tile, triangle, sample) triples, and each sample keeps at most ``K``.
+Bounded memory: triangle screen boxes (grown by the blur distance) are binned into tiles of
+``TILE x TILE`` samples, tiles evaluated in chunks of at most ``CHUNK_ENTRIES`` (tile, triangle,
+sample) triples, and each sample keeps at most ``K`` candidates.
 
-Differences from PyTorch3D, on purpose: texels are addressed as a GPU does (texel centres at
-``(i + 0.5) / size``, repeat addressing), not with ``TexturesUV``'s ``align_corners=True`` and
-border padding, which would misplace a shipped texture by up to half a texel; triangles the
-exact rasteriser drops (behind the eye, outside the depth range, zero area) are dropped here too.
+Unlike PyTorch3D, on purpose: texels are addressed as a GPU does (centres at ``(i + 0.5) /
+size``, repeat), not as ``TexturesUV`` (``align_corners=True``, border), which would misplace a
+shipped texture by up to half a texel; triangles the exact rasteriser drops are dropped too.
 """
 
 from __future__ import annotations
@@ -74,8 +73,7 @@ EPS = 1e-10
 TILE = 8
 """Samples per side of a tile."""
 CHUNK_ENTRIES = 1 << 20
-"""(tile, candidate triangle, sample) triples evaluated at once: bounds the working memory
-(about 30 float tensors of this many entries at the peak)."""
+"""(tile, triangle, sample) triples evaluated at once: about 30 tensors this long at the peak."""
 
 
 @dataclass(frozen=True)
@@ -88,14 +86,11 @@ class SoftSettings:
         faces_per_pixel: candidates kept per sample, nearest in depth.
         blur_radius: squared NDC distance beyond which a triangle is not a candidate
             (None: ``log(1 / EDGE_PROBABILITY - 1) * sigma``, where its probability is 1e-4).
-        depth_range: ``(znear, zfar)`` of the depth normalisation. PyTorch3D's shader reads
-            them from its cameras, whose defaults are (1, 100); None: each protocol camera's
-            own near and far planes (about 27 times sharper a softmax at distance 2.4, which
-            lets nearer neighbours within the blur radius win over the triangle a sample
-            lies in: PSNR-fg of a soft render of spot against the exact one 16.7 dB, with
-            (1, 100) 18.9 dB).
+        depth_range: ``(znear, zfar)`` of the depth normalisation: PyTorch3D's cameras'
+            defaults; None: each camera's own planes (at 2.4 a 27 times sharper softmax, where
+            nearer neighbours within the blur radius outweigh the triangle a sample is in).
         supersample: samples per pixel side (None: the evaluation's, as the exact renderer;
-            PyTorch3D has none, and 1 is 4 times cheaper under 2 x 2 supersampling).
+            PyTorch3D has none; 1 is 4 times cheaper than 2 x 2).
     """
 
     sigma: float = SIGMA
@@ -106,14 +101,11 @@ class SoftSettings:
     supersample: int | None = None
 
     def __post_init__(self) -> None:
-        if not (self.sigma > 0 and self.gamma > 0 and self.faces_per_pixel >= 1):
-            raise ValueError(f"sigma, gamma and faces_per_pixel must be positive: {self}")
-        if self.blur_radius is not None and self.blur_radius < 0:
-            raise ValueError(f"blur_radius must be >= 0: {self}")
-        if self.depth_range is not None and not self.depth_range[1] > self.depth_range[0]:
-            raise ValueError(f"depth_range must be (znear, zfar) with zfar > znear: {self}")
-        if self.supersample is not None and self.supersample < 1:
-            raise ValueError(f"supersample must be >= 1: {self}")
+        near, far = self.depth_range or (0, 1)
+        if not (self.sigma > 0 and self.gamma > 0 and self.faces_per_pixel >= 1 and far > near):
+            raise ValueError(f"sigma, gamma, faces_per_pixel, zfar - znear must be > 0: {self}")
+        if (self.blur_radius or 0) < 0 or (self.supersample or 1) < 1:
+            raise ValueError(f"blur_radius must be >= 0 and supersample >= 1: {self}")
 
     @property
     def radius(self) -> float:
@@ -158,9 +150,6 @@ class SoftFragments:
 
     def _tensors(self) -> tuple[torch.Tensor, ...]:
         return self.sample, self.face, self.weight, self.bary, self.covered, self.alpha
-
-    def to(self, device: torch.device | str) -> SoftFragments:
-        return SoftFragments(self.resolution, *(t.to(device) for t in self._tensors()))
 
     def coverage(self) -> torch.Tensor:
         """``(resolution, resolution)`` soft coverage (alpha) of every sample."""
@@ -222,8 +211,8 @@ def _expand(counts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def _bin(edge, nx, ny, resolution: int, radius: float, tile: int):
-    """``(pair_triangle, pair_tile, tile_start, tile_count)``: the triangles that may reach
-    each tile, pairs sorted by tile (triangles ascending within).
+    """``(pair_triangle, tile_start, tile_count)``: the triangles that may reach each tile,
+    pairs sorted by tile (triangles ascending within).
 
     A triangle meets the tiles of its screen box grown by the blur distance ``sqrt(radius)``,
     less those that lie wholly beyond that distance outside one of its edge lines."""
@@ -251,7 +240,7 @@ def _bin(edge, nx, ny, resolution: int, radius: float, tile: int):
     tri, tile_id = tri[keep], (ty * tiles + tx)[keep]
     order = torch.argsort(tile_id, stable=True)
     counts = torch.bincount(tile_id, minlength=tiles * tiles)
-    return tri[order], tile_id[order], torch.cumsum(counts, 0) - counts, counts
+    return tri[order], torch.cumsum(counts, 0) - counts, counts
 
 
 def _chunks(counts: list[int], per_tile: int, budget: int):
@@ -288,22 +277,15 @@ def soft_rasterize(
         tile, chunk_entries: tile side and working-set bound (results do not depend on them).
     """
     device = clip.device
-    faces = faces.to(device=device, dtype=torch.long)
-    ids, coef, edge, corner_w, nx, ny = _setup(clip, faces)
-    radius, keep = settings.radius, settings.faces_per_pixel
-    znear, zfar = depth_range
-    pair_tri, pair_tile, tile_start, tile_count = _bin(edge, nx, ny, resolution, radius, tile)
-    tiles = -(-resolution // tile)
-    step = 2.0 / resolution
+    ids, coef, edge, corner_w, nx, ny = _setup(clip, faces.to(device=device, dtype=torch.long))
+    pair_tri, tile_start, tile_count = _bin(edge, nx, ny, resolution, settings.radius, tile)
+    tiles, step = -(-resolution // tile), 2.0 / resolution
     # sample offsets from the tile's first sample centre (the same for every tile)
     local = torch.arange(tile * tile, device=device)
     lx, ly = (local % tile).to(torch.float64) * step, (local // tile).to(torch.float64) * -step
     grid = torch.stack([lx, ly, torch.ones_like(lx)]).to(dtype)  # (3, S)
-    lengths = (lx * lx + ly * ly).to(dtype)
-    along = coef[:, 3:6]
-    inv_len2 = (1.0 / along[..., :2].square().sum(-1)).to(dtype)  # (T, 3)
-    len2 = along[..., :2].square().sum(-1).to(dtype)
-    corner_w = corner_w.to(dtype)
+    len2 = coef[:, 3:6, :2].square().sum(-1)  # (T, 3) squared edge lengths
+    per_edge = torch.stack([corner_w, len2, 1.0 / len2], dim=1).to(dtype)  # (T, 3, 3)
     order = torch.nonzero(tile_count).squeeze(1)
     order = order[torch.argsort(tile_count[order], stable=True)]
     counts = tile_count[order].tolist()
@@ -311,59 +293,80 @@ def soft_rasterize(
     covered: list[tuple[torch.Tensor, torch.Tensor]] = []
     for start, stop in _chunks(counts, tile * tile, chunk_entries):
         chunk = order[start:stop]
-        width = counts[stop - 1]
-        slot = torch.arange(width, device=device)
+        slot = torch.arange(counts[stop - 1], device=device)
         real = slot < tile_count[chunk][:, None]  # (G, M)
         tri = pair_tri[torch.where(real, tile_start[chunk][:, None] + slot, 0)]  # (G, M)
-        col0, row0 = (chunk % tiles) * tile, (chunk // tiles) * tile
-        ox = ((col0.to(torch.float64) + 0.5) * step - 1.0)[:, None, None]
-        oy = (1.0 - (row0.to(torch.float64) + 0.5) * step)[:, None, None]
-        rows = coef[tri]  # (G, M, 9, 3), moved to the tile's origin o (p = o + p'):
-        alpha, beta, gamma = rows.unbind(-1)
-        gamma = gamma + alpha * ox + beta * oy
-        # rows 6-8 take |p|^2 = |p'|^2 + 2 o . p' + |o|^2 in, less the |p'|^2 added below
-        gamma[..., 6:] += ox * ox + oy * oy
-        alpha, beta = alpha.clone(), beta.clone()
-        alpha[..., 6:] += 2 * ox
-        beta[..., 6:] += 2 * oy
-        rows = torch.stack([alpha, beta, gamma], dim=-1).to(dtype)
-        values = (rows.transpose(1, 2).reshape(-1, 3) @ grid).view(len(chunk), 9, width, -1)
-        q, s, dist = values[:, 0:3], values[:, 3:6], values[:, 6:9]
-        inside = q.amin(dim=1) > 0  # (G, M, S)
-        q = q.clamp_(min=0.0)
-        total = q.sum(dim=1)
-        w3 = corner_w[tri].transpose(1, 2)[..., None]  # (G, 3, M, 1)
-        depth = (q * w3).sum(dim=1) / total
-        t = (s * inv_len2[tri].transpose(1, 2)[..., None]).clamp_(0.0, 1.0)
-        dist += lengths
-        dist = torch.addcmul(dist, t, t * len2[tri].transpose(1, 2)[..., None] - 2.0 * s)
-        d2 = dist.amin(dim=1).clamp_(min=0.0)
-        in_image = (col0[:, None] + local % tile < resolution) & (
-            row0[:, None] + local // tile < resolution
-        )
-        valid = (inside | (d2 < radius)) & (total > 0) & real[..., None] & in_image[:, None]
+        col = (chunk % tiles)[:, None] * tile + local % tile  # (G, S)
+        row = (chunk // tiles)[:, None] * tile + local // tile
+        first = [(c[:, 0].to(torch.float64) + 0.5) * step for c in (col, row)]
+        origin = first[0] - 1.0, 1.0 - first[1]  # NDC of each tile's first sample
+        signed, inside, q, total, depth = _candidates(coef[tri], per_edge[tri], origin, grid)
+        valid = (inside | (signed < settings.radius)) & (total > 0) & real[..., None]
+        valid &= ((col < resolution) & (row < resolution))[:, None]
         key = torch.where(valid, depth, math.inf)
-        k = min(keep, width)
+        k = min(settings.faces_per_pixel, len(slot))
         key, pick = torch.topk(key, k, dim=1, largest=False)  # (G, k, S) nearest in depth
-        mask = torch.isfinite(key)
-        signed = torch.where(inside, -d2, d2).gather(1, pick)
         bary = q.gather(2, pick[:, None].expand(-1, 3, -1, -1)) / total.gather(1, pick)[:, None]
+        weight, alpha = _blend(signed.gather(1, pick), key, settings, depth_range)
         face = tri[..., None].expand(-1, -1, pick.shape[-1]).gather(1, pick)
-        prob = torch.where(mask, torch.sigmoid(-signed / settings.sigma), 0.0)
-        alpha = 1.0 - torch.prod(1.0 - prob, dim=1)
-        z_inv = torch.where(mask, (zfar - key) / (zfar - znear), 0.0)
-        z_max = z_inv.max(dim=1, keepdim=True).values.clamp(min=EPS)
-        num = prob * torch.exp((z_inv - z_max) / settings.gamma)
-        delta = torch.exp((EPS - z_max) / settings.gamma).clamp(min=EPS)
-        weight = num / (num.sum(dim=1, keepdim=True) + delta)
-        sample = (row0[:, None] + local // tile) * resolution + col0[:, None] + local % tile
-        sample = sample[:, None].expand_as(weight)
+        sample = (row * resolution + col)[:, None].expand_as(weight)
         hit = torch.nonzero(weight > 0, as_tuple=True)
         g, j, p = hit
         parts.append((sample[hit], face[hit], weight[hit], bary[g, :, j, p].T))
-        any_hit = torch.nonzero(mask.any(dim=1), as_tuple=True)
+        any_hit = torch.nonzero(torch.isfinite(key).any(dim=1), as_tuple=True)
         covered.append((sample[:, 0][any_hit], alpha[any_hit]))
     return _fragments(resolution, ids, parts, covered, dtype, device)
+
+
+def _candidates(rows, per_edge, origin, grid):
+    """Every (tile, candidate, sample) of a chunk: ``(signed, inside, q, total, depth)``.
+
+    Args:
+        rows: ``(G, M, 9, 3)`` float64 rows of :func:`_setup` of each tile's candidates.
+        per_edge: ``(G, M, 3, 3)``: corner depths ``w``, squared edge lengths and inverses.
+        origin: ``(x, y)``, each ``(G,)`` float64: NDC of each tile's first sample.
+        grid: ``(3, S)`` sample offsets ``p' = (x', y', 1)`` from it.
+
+    Returns:
+        ``(G, M, S)`` signed squared distance (negative inside) and inside; ``(G, 3, M, S)``
+        clipped ``q`` (``max(q_k, 0)``; the clipped barycentrics are ``q / total``); ``(G, M,
+        S)`` ``total`` and view depth ``sum_k q_k w_k / total``.
+    """
+    ox, oy = (o[:, None, None] for o in origin)
+    alpha, beta, gamma = rows.unbind(-1)  # moved to the tile's origin o (p = o + p'):
+    gamma = gamma + alpha * ox + beta * oy
+    # rows 6-8 take |p|^2 = |p'|^2 + 2 o . p' + |o|^2 in, less the |p'|^2 added below
+    gamma[..., 6:] += ox * ox + oy * oy
+    alpha, beta = alpha.clone(), beta.clone()
+    alpha[..., 6:] += 2 * ox
+    beta[..., 6:] += 2 * oy
+    rows = torch.stack([alpha, beta, gamma], dim=-1).to(grid.dtype)
+    count, width = rows.shape[:2]
+    values = (rows.transpose(1, 2).reshape(-1, 3) @ grid).view(count, 9, width, -1)
+    q, s, dist = values[:, 0:3], values[:, 3:6], values[:, 6:9]
+    w, len2, inv_len2 = (v.transpose(1, 2)[..., None] for v in per_edge.unbind(2))
+    inside = q.amin(dim=1) > 0
+    q = q.clamp_(min=0.0)
+    total = q.sum(dim=1)
+    depth = (q * w).sum(dim=1) / total
+    t = (s * inv_len2).clamp_(0.0, 1.0)  # the nearest point of each edge: v_k + t e_k
+    dist += grid[0] * grid[0] + grid[1] * grid[1]
+    d2 = torch.addcmul(dist, t, t * len2 - 2.0 * s).amin(dim=1).clamp_(min=0.0)
+    return torch.where(inside, -d2, d2), inside, q, total, depth
+
+
+def _blend(signed, depth, settings: SoftSettings, depth_range: tuple[float, float]):
+    """PyTorch3D's ``softmax_rgb_blend`` weights over the ``(G, k, S)`` candidates kept
+    (``depth`` +inf: an empty slot): ``(weight, alpha)``, ``(G, k, S)`` and ``(G, S)``."""
+    znear, zfar = depth_range
+    mask = torch.isfinite(depth)
+    prob = torch.where(mask, torch.sigmoid(-signed / settings.sigma), 0.0)
+    alpha = 1.0 - torch.prod(1.0 - prob, dim=1)
+    z_inv = torch.where(mask, (zfar - depth) / (zfar - znear), 0.0)
+    z_max = z_inv.max(dim=1, keepdim=True).values.clamp(min=EPS)
+    num = prob * torch.exp((z_inv - z_max) / settings.gamma)
+    delta = torch.exp((EPS - z_max) / settings.gamma).clamp(min=EPS)
+    return num / (num.sum(dim=1, keepdim=True) + delta), alpha
 
 
 def _fragments(resolution, ids, parts, covered, dtype, device) -> SoftFragments:
@@ -428,10 +431,6 @@ class SoftRenderer:
         reference: returns the reference textures, one per material (default: the protocol's
             reference maps, :func:`geoscaler.filters.reference_textures`, in linear light).
         dtype: float type of the fragments.
-
-    Example:
-        >>> soft = SoftRenderer(mesh, "cpu", Evaluation(image_size=128))  # doctest: +SKIP
-        >>> image = soft.render(Camera((0, 0, 1), 2.4), [texture])  # (128, 128, 3) sRGB
     """
 
     def __init__(
@@ -532,6 +531,49 @@ class SoftRenderer:
         )
         side = self.image_size
         return image.view(-1, side, side).permute(1, 2, 0)
+
+    def pixel_taps(
+        self, fragments: SoftFragments, layouts: Sequence[MipLayout | None]
+    ) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None]:
+        """Per material, a render with the mesh's UVs as fixed taps of texels into pixels.
+
+        With fixed UVs every pixel is a fixed weighted sum of level-0 texels (blend weight x
+        bilinear weight / samples per pixel): the entries' taps, summed per (pixel, texel)
+        (on spot 6 times fewer). ``layouts``: per material the candidate's (None: untextured).
+
+        Returns:
+            Per material ``(pixel, texel, weight)``, each ``(T,)``: int32 flat output pixel,
+            int32 index into the flat mip chain (level 0), weight; None: untextured or unseen.
+        """
+        u, v = interpolate(fragments, self.faces, self.uvs)
+        material = self.face_material.index_select(0, fragments.face)
+        pixel = self.pixel_of_entry(fragments)
+        weight = fragments.weight / self.supersample**2
+        taps: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None] = []
+        for index, layout in enumerate(layouts):
+            hit = torch.nonzero(material == index).squeeze(1)
+            if layout is None or len(hit) == 0:
+                taps.append(None)
+                continue
+            level = torch.zeros(len(hit), dtype=torch.int32, device=self.device)
+            texel, bilinear_weight = layout.bilinear_taps(u[hit], v[hit], level)
+            key = (pixel[hit] * layout.num_texels + texel).reshape(-1)
+            keys, inverse = torch.unique(key, return_inverse=True)
+            summed = weight.new_zeros(len(keys))
+            summed.index_add_(0, inverse, (bilinear_weight * weight[hit]).reshape(-1))
+            pixels, texels = keys // layout.num_texels, keys % layout.num_texels
+            taps.append((pixels.to(torch.int32), texels.to(torch.int32), summed))
+        return taps
+
+    def untextured(self, fragments: SoftFragments, plain: Sequence[bool]) -> torch.Tensor:
+        """``(3, pixels)`` linear colour the entries of the ``plain`` materials add (their
+        factor alone)."""
+        material = self.face_material.index_select(0, fragments.face)
+        hit = torch.nonzero(torch.tensor(plain, device=self.device)[material]).squeeze(1)
+        colours = self.factors.T.index_select(1, material[hit])
+        weight = fragments.weight[hit].to(colours.dtype) / self.supersample**2
+        image = colours.new_zeros(3, self.image_size**2)
+        return image.index_add(1, self.pixel_of_entry(fragments)[hit], colours * weight)
 
     def foreground(self, fragments: SoftFragments) -> torch.Tensor:
         """``(image_size, image_size)`` bool: pixels a triangle reaches (elsewhere every

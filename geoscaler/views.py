@@ -24,7 +24,7 @@ from geoscaler.cameras import Camera, view_set_cameras
 from geoscaler.metrics import evaluate
 from geoscaler.raster import GBuffer
 from geoscaler.render import Renderer
-from geoscaler.soft import SoftRenderer, SoftSettings
+from geoscaler.soft import SoftFragments, SoftRenderer, SoftSettings
 from geoscaler.texture import (
     MipLayout,
     MipTexture,
@@ -197,7 +197,10 @@ class ViewCache:
             self.taps.append(self._taps(gbuffer))
             self.untextured.append(self._untextured(gbuffer))
 
-    def _taps(self, gbuffer: GBuffer) -> list[PixelTaps | None]:
+    def _taps(self, gbuffer: GBuffer | SoftFragments) -> list[PixelTaps | None]:
+        if isinstance(gbuffer, SoftFragments):
+            found = self.renderer.pixel_taps(gbuffer, self.layouts)
+            return [None if taps is None else PixelTaps(*taps) for taps in found]
         footprint = self.renderer.footprint(gbuffer)
         material = self.renderer.face_material.index_select(0, gbuffer.tri_ids)
         pixel_of_sample = self.renderer.pixel_of_sample(gbuffer)
@@ -221,8 +224,10 @@ class ViewCache:
             )
         return taps
 
-    def _untextured(self, gbuffer: GBuffer) -> torch.Tensor:
+    def _untextured(self, gbuffer: GBuffer | SoftFragments) -> torch.Tensor:
         """``(3, pixels)`` linear colour contributed by samples of untextured materials."""
+        if isinstance(gbuffer, SoftFragments):
+            return self.renderer.untextured(gbuffer, [layout is None for layout in self.layouts])
         material = self.renderer.face_material.index_select(0, gbuffer.tri_ids)
         plain = torch.tensor([layout is None for layout in self.layouts], device=material.device)
         hit = torch.nonzero(plain[material]).squeeze(1)
@@ -299,8 +304,8 @@ def training_views(
     Without ``soft``: views of ``renderer`` (with the taps of ``sizes`` when ``with_taps``).
     With ``soft``: views of a :class:`~geoscaler.soft.SoftRenderer` of the same mesh, device and
     evaluation, whose references are soft renders of ``renderer``'s reference maps, so that
-    candidate and original are rendered the same way, as the paper trains (a candidate is then
-    rendered in full each time: soft shading has no cached taps).
+    candidate and original are rendered the same way, as the paper trains (with taps too:
+    :meth:`~geoscaler.soft.SoftRenderer.pixel_taps`).
     """
     if soft is None:
         return ViewCache(ViewSet(renderer, cameras, eager=False), sizes, with_taps)
@@ -311,4 +316,4 @@ def training_views(
         soft,
         reference=renderer.reference_textures,
     )
-    return ViewCache(ViewSet(training, cameras, eager=False), sizes, with_taps=False)
+    return ViewCache(ViewSet(training, cameras, eager=False), sizes, with_taps)

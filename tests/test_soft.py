@@ -27,6 +27,7 @@ from geoscaler.soft import (
 )
 from geoscaler.texture import quantize_linear, texture_to_linear
 from geoscaler.validation import Validation, validation_view_sets
+from geoscaler.views import training_views
 
 F64 = torch.float64
 DEPTH_RANGE = (1.0, 100.0)
@@ -300,6 +301,38 @@ def test_the_default_settings_are_pytorch3ds():
     assert settings.depth_range == (1.0, 100.0) and settings.supersample is None
     with pytest.raises(ValueError):
         SoftSettings(sigma=0)
+
+
+def test_cached_taps_render_what_the_soft_renderer_renders_with_several_materials():
+    """With the mesh's UVs a soft render is fixed taps of texels (summed per pixel and texel),
+    for textured, tinted and untextured materials alike."""
+    mesh = demo_mesh(subdivisions=4, texture_size=32)
+    mesh.face_material = np.arange(len(mesh.faces)) % 3
+    mesh.materials = [
+        mesh.materials[0],
+        Material("tinted", mesh.materials[0].base_color_texture, np.array([1, 0.5, 0.25, 1])),
+        Material("plain", None, np.array([0.2, 0.4, 0.6, 1.0], dtype=np.float32)),
+    ]
+    renderer = Renderer(mesh, "cpu", Evaluation(image_size=32))
+    cameras = [Camera((0.6, 0.0, 0.8), 2.4), Camera((0.0, -1.0, 0.0), 1.5)]
+    sizes = [(8, 8), (16, 8), None]
+    soft = SoftSettings(sigma=1e-3)
+    cached = training_views(renderer, cameras, sizes, True, soft)
+    general = training_views(renderer, cameras, sizes, False, soft)
+    textures = [torch.rand(8, 8, 3), torch.rand(16, 8, 3), None]
+    for view in range(2):
+        cached.views.cache_next()
+        general.views.cache_next()
+        torch.testing.assert_close(
+            cached.render(view, textures, None),
+            general.render(view, textures, None),
+            atol=2e-6,
+            rtol=0,
+        )
+        fragments = cached.views.gbuffers[view]
+        assert isinstance(fragments, SoftFragments)
+        taps = sum(len(t.texel) for t in cached.taps[view] if t is not None)
+        assert taps < 4 * fragments.num_entries / 2  # summed per (pixel, texel)
 
 
 # ----------------------------------------------------------------------------- training
