@@ -344,6 +344,24 @@ def cmd_bench(args: argparse.Namespace) -> None:
     command(args)
 
 
+def cmd_batch(args: argparse.Namespace) -> None:
+    """``geoscaler batch``: the main job over every asset under IN_DIR; the exit status is the
+    number of assets that failed (at most 125)."""
+    from dataclasses import replace
+
+    from geoscaler.batch import command
+
+    # With Ray the GPUs are the workers': --device cuda is checked where the job runs.
+    on_workers = args.engine == "ray" and args.device == "cuda"
+    checked = argparse.Namespace(**{**vars(args), "device": "auto"}) if on_workers else args
+    settings = job_settings(checked)
+    if on_workers:
+        settings["options"] = replace(settings["options"], device="cuda")
+    failed = command(args, settings)
+    if failed:
+        raise SystemExit(failed)
+
+
 def _add_network_arguments(parser: argparse.ArgumentParser, variants: str) -> None:
     """Flags of the GeoScaler network: variant(s), preset, VGG-19 weights."""
     parser.add_argument("--variant", help=variants)
@@ -521,6 +539,67 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("paths", nargs="+", metavar="PATH", help="mesh files or folders")
     _add_method_arguments(bench, scales=[4, 8])
     bench.set_defaults(run=cmd_bench)
+
+    batch = commands.add_parser(
+        "batch",
+        help="the main job over a library: every asset under IN_DIR, written under OUT_DIR",
+        description="Find the assets under IN_DIR (the file a folder's meta.json names as "
+        "its entry, else every .glb, .gltf and .obj file), downsample each as `downsample` "
+        "does with the options below, write it and its report (NAME.report.json) at the same "
+        "relative path under OUT_DIR, and summary.csv, summary.json and summary.md into "
+        "OUT_DIR. A bad asset is reported and the rest is done; the exit status is the number "
+        "that failed (at most 125). Ctrl-C: no new asset starts and running jobs keep their "
+        "best result; Ctrl-C again aborts them. No partial output is left either way.",
+    )
+    batch.add_argument("in_dir", metavar="IN_DIR", help="folder of assets (never modified)")
+    batch.add_argument(
+        "-o", "--output", required=True, metavar="OUT_DIR", help="folder to write (created)"
+    )
+    add_job_arguments(batch)
+    batch.add_argument(
+        "--format", choices=["glb", "gltf", "obj"], help="output format (default: the input's)"
+    )
+    batch.add_argument(
+        "--resume",
+        action="store_true",
+        help="skip the assets whose outputs and report an earlier batch wrote with the same "
+        "options and that are newer than their inputs",
+    )
+    batch.add_argument(
+        "--engine",
+        choices=["local", "ray"],
+        default="local",
+        help="local: --jobs processes on this machine (default); ray: one Ray task per asset "
+        "on a Ray cluster (pip install 'geoscaler[ray]'; IN_DIR and OUT_DIR must be shared)",
+    )
+    batch.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="local: assets run at once, each in a process with cores / N torch threads "
+        "(default 1)",
+    )
+    batch.add_argument(
+        "--ray-address",
+        metavar="ADDR",
+        help="ray: the cluster's head, e.g. HEAD_IP:6379, or auto; local starts a Ray "
+        "instance on this machine (default: Ray's: RAY_ADDRESS, else a running local cluster, "
+        "else a new local instance)",
+    )
+    batch.add_argument(
+        "--cpus-per-task",
+        type=float,
+        default=1.0,
+        help="ray: CPUs each task asks for, and its torch threads (default 1)",
+    )
+    batch.add_argument(
+        "--gpus-per-task",
+        type=float,
+        default=1.0,
+        help="ray: GPUs each task asks for when the device is CUDA (default 1; 0.5: two tasks "
+        "share a GPU)",
+    )
+    batch.set_defaults(run=cmd_batch)
     return parser
 
 
