@@ -2,7 +2,8 @@
 
 A *model* produces the candidate: linear-light textures (one per material, None where the
 material is untextured) and optionally new UVs. The loop renders K random training views of
-the candidate through the protocol renderer, compares them with renders of the original
+the candidate through the protocol renderer (or the paper's soft rasteriser, candidate and
+original alike: ``training_renderer="soft"``), compares them with renders of the original
 (L2 plus a weighted 1 - SSIM on the sRGB images, foreground only), and steps AdamW with a
 warm-up and cosine decay. It validates the candidate as it ships (gutters filled, 8-bit) on
 a :class:`~geoscaler.validation.Validation` (Q and near/far guards) and keeps the best state
