@@ -69,10 +69,11 @@ def test_soft_coverage_converges_to_the_hard_coverage_as_sigma_shrinks():
     mismatch = []
     for sigma in (1e-2, 1e-3, 1e-4, 1e-5):
         soft = soft_rasterize(clip, faces, res, DEPTH_RANGE, SoftSettings(sigma=sigma), F64)
-        mismatch.append(float((soft.coverage() - hard).abs().mean()))
+        difference = (soft.coverage() - hard).abs()
+        mismatch.append(float(difference.mean()))
     assert all(a > b for a, b in zip(mismatch, mismatch[1:], strict=False)), mismatch
     # the nearest samples sit at squared distance (0.2236 * 2 / 32)^2 = 1.95e-4: sigmoid(-19.5)
-    assert mismatch[-1] < 1e-8
+    assert mismatch[-1] < 1e-9 and difference.max() < 1e-8  # measured 6.4e-11 and 3.3e-9
     assert mismatch[0] > 0.05  # sigma 1e-2 blurs over a third of the frame
 
 
