@@ -19,10 +19,12 @@ import numpy as np
 
 from geoscaler.errors import GeoscalerError
 from geoscaler.filters import check_scale
+from geoscaler.io import IMAGE_FORMATS
 from geoscaler.methods import MethodOptions, get_method, is_learned, method_names
 from geoscaler.methods.network import check_preset, check_variant
 from geoscaler.protocol import VIEWS
 from geoscaler.render import resolve_device
+from geoscaler.sizes import SizePlan, SizeRule, parse_class_value, size_plan
 
 DEFAULT_TIME_BUDGET = 60.0
 """Seconds a learned method's job may spend when ``--time-budget`` is not given (downsample,
@@ -36,6 +38,57 @@ def check_scales(scales: Sequence[Any]) -> list[int]:
     if not scales:
         raise GeoscalerError("--scale: give at least one scale factor, e.g. --scale 4 8")
     return list(dict.fromkeys(check_scale(scale) for scale in scales))
+
+
+def check_rules(scales: Sequence[Any]) -> list[SizeRule]:
+    """Distinct size rules, in the given order: each whole scale factor >= 2 as the rule that
+    divides by it, each :class:`~geoscaler.sizes.SizeRule` as it is."""
+    if not scales:
+        raise GeoscalerError("--scale: give at least one scale factor, e.g. --scale 4 8")
+    return list(
+        dict.fromkeys(
+            s if isinstance(s, SizeRule) else SizeRule(scale=check_scale(s)) for s in scales
+        )
+    )
+
+
+DEFAULT_SCALE = 4
+"""The reduction factor of every texture when neither ``--scale`` nor ``--max-size`` is given."""
+
+
+def check_size_plan(
+    scales: Sequence[str] | None, max_sizes: Sequence[str] | None, power_of_two: bool = False
+) -> SizePlan:
+    """The size rule of each texture class from the command line's ``--scale`` and
+    ``--max-size`` values (each ``N`` for every class or ``CLASS=N``, repeatable; the last
+    value for a class wins) and ``--power-of-two``. Neither given: ``--scale 4``."""
+    scales, max_sizes = list(scales or []), list(max_sizes or [])
+    if not scales and not max_sizes:
+        scales = [str(DEFAULT_SCALE)]
+    scale = dict(_class_value(text, "--scale") for text in scales)
+    limit = dict(_class_value(text, "--max-size") for text in max_sizes)
+    return size_plan(scale, limit, power_of_two)
+
+
+def _class_value(text: str, flag: str) -> tuple[str, int]:
+    try:
+        return parse_class_value(text)
+    except ValueError as error:
+        raise GeoscalerError(f"{flag}: {error}") from None
+
+
+def check_image_format(name: str | None) -> str | None:
+    """``--image-format``: a format :data:`geoscaler.io.IMAGE_FORMATS` writes (``jpg``
+    accepted), or None: each image in its input's format."""
+    if name is None:
+        return None
+    name = {"jpg": "jpeg"}.get(name.strip().lower(), name.strip().lower())
+    if name not in IMAGE_FORMATS:
+        raise GeoscalerError(
+            f"--image-format {name!r}: choose one of {', '.join(IMAGE_FORMATS)} (default: each "
+            "image in the format it came in)"
+        )
+    return name
 
 
 def check_method(name: str, flag: str = "--method") -> str:

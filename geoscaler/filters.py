@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import weakref
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -25,6 +24,7 @@ from PIL import Image
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import TexturedMesh, check_texture
 from geoscaler.protocol import REFERENCE_MAX_SIZE
+from geoscaler.sizes import SizeRule, check_scale, round_ratio
 
 PBD_PATCH = 2
 """Side of PBD's square patches, in low-resolution pixels."""
@@ -44,52 +44,37 @@ __all__ = [
     "reference_size",
     "reference_texture",
     "reference_textures",
+    "resize_channels",
     "target_size",
 ]
-
-
-def _round_ratio(numerator: int, denominator: int) -> int:
-    """``numerator / denominator`` rounded half up, in exact integer arithmetic."""
-    return (2 * numerator + denominator) // (2 * denominator)
-
-
-def check_scale(scale: Any) -> int:
-    """``scale`` as an int when it is a whole number >= 2 (bools and floats such as 4.0 are
-    not); otherwise the one error message for a bad scale, wherever it was given."""
-    if isinstance(scale, bool) or not isinstance(scale, int | np.integer) or scale < 2:
-        raise GeoscalerError(
-            f"--scale {scale!r}: must be a whole number >= 2, e.g. 4 (2048 -> 512) or 8"
-        )
-    return int(scale)
 
 
 def target_size(height: int, width: int, scale: int) -> tuple[int, int]:
     """Size of a texture downsampled by ``scale``: each side divided, rounded to whole texels.
 
     ``h = round(height / scale)``, ``w = round(width / scale)``, halves rounded up
-    (1000 x 750 at 8 -> 125 x 94).
-
-    Args:
-        height, width: texture size in texels, >= 1.
-        scale: the reduction factor, a whole number >= 2 and at most ``min(height, width)``.
-
-    Returns:
-        ``(h, w)``, each >= 1.
+    (1000 x 750 at 8 -> 125 x 94): :meth:`geoscaler.sizes.SizeRule.size` with the scale alone.
 
     Raises:
         GeoscalerError: ``scale`` is not a whole number >= 2 (bools and floats such as 4.0
             count as not whole numbers) or is larger than the texture's shorter side.
     """
-    scale = check_scale(scale)
-    if height < 1 or width < 1:
-        raise GeoscalerError(f"texture size {height} x {width}: both sides must be >= 1 texel")
-    if scale > min(height, width):
-        raise GeoscalerError(
-            f"scale {scale} is larger than the {height} x {width} texture: its shorter side "
-            f"would drop below 1 texel; use a scale of at most {min(height, width)}"
-        )
-    scale = int(scale)
-    return _round_ratio(height, scale), _round_ratio(width, scale)
+    return SizeRule(scale=check_scale(scale)).size(height, width)
+
+
+def _size_of(texture: np.ndarray, target: int | tuple[int, int]) -> tuple[int, int]:
+    """The output size for a scale (``int``) or an explicit ``(h, w)`` no larger than the
+    texture."""
+    height, width = texture.shape[:2]
+    if isinstance(target, tuple):
+        h, w = (int(side) for side in target)
+        if not (1 <= h <= height and 1 <= w <= width):
+            raise GeoscalerError(
+                f"size {h} x {w}: a {height} x {width} texture is only made smaller, to at "
+                "least 1 x 1"
+            )
+        return h, w
+    return target_size(height, width, target)
 
 
 _CHANNELS = (1, 2, 3, 4)
@@ -97,7 +82,7 @@ _CHANNELS = (1, 2, 3, 4)
 :func:`geoscaler.mesh.check_texture`, which raises a GeoscalerError."""
 
 
-def _pillow_resize(
+def resize_channels(
     texture: np.ndarray, size: tuple[int, int], resample: Image.Resampling
 ) -> np.ndarray:
     """Resize ``(H, W, C)`` uint8 to ``size = (h, w)`` with a Pillow filter, channel by channel.
@@ -114,14 +99,16 @@ def _pillow_resize(
     return np.stack(channels, axis=-1)
 
 
-def _resample(texture: np.ndarray, scale: int, resample: Image.Resampling) -> np.ndarray:
-    """Validate, then resize ``texture`` to ``target_size`` with a Pillow filter."""
+def _resample(
+    texture: np.ndarray, target: int | tuple[int, int], resample: Image.Resampling
+) -> np.ndarray:
+    """Validate, then resize ``texture`` to ``target`` (a scale or a size) with a Pillow
+    filter."""
     check_texture(texture, channels=_CHANNELS)
-    size = target_size(texture.shape[0], texture.shape[1], scale)
-    return _pillow_resize(texture, size, resample)
+    return resize_channels(texture, _size_of(texture, target), resample)
 
 
-def box(texture: np.ndarray, scale: int) -> np.ndarray:
+def box(texture: np.ndarray, scale: int | tuple[int, int]) -> np.ndarray:
     """Area average (Pillow ``Image.BOX``): ``(H, W, C)`` uint8 -> ``(h, w, C)`` uint8.
 
     For sides divisible by ``scale`` each output texel is the mean of its ``scale x scale``
@@ -131,12 +118,12 @@ def box(texture: np.ndarray, scale: int) -> np.ndarray:
     return _resample(texture, scale, Image.Resampling.BOX)
 
 
-def bicubic(texture: np.ndarray, scale: int) -> np.ndarray:
+def bicubic(texture: np.ndarray, scale: int | tuple[int, int]) -> np.ndarray:
     """Pillow ``Image.BICUBIC``: ``(H, W, C)`` uint8 -> ``(h, w, C)`` uint8."""
     return _resample(texture, scale, Image.Resampling.BICUBIC)
 
 
-def lanczos(texture: np.ndarray, scale: int) -> np.ndarray:
+def lanczos(texture: np.ndarray, scale: int | tuple[int, int]) -> np.ndarray:
     """Pillow ``Image.LANCZOS``: ``(H, W, C)`` uint8 -> ``(h, w, C)`` uint8."""
     return _resample(texture, scale, Image.Resampling.LANCZOS)
 
@@ -231,7 +218,7 @@ def _pbd_float(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return total / count
 
 
-def pbd(texture: np.ndarray, scale: int) -> np.ndarray:
+def pbd(texture: np.ndarray, scale: int | tuple[int, int]) -> np.ndarray:
     """Perceptually Based Downscaling: ``(H, W, C)`` uint8 -> ``(h, w, C)`` uint8.
 
     A. C. Oztireli and M. Gross, "Perceptually Based Downscaling of Images", ACM Transactions
@@ -254,18 +241,18 @@ def pbd(texture: np.ndarray, scale: int) -> np.ndarray:
     product.
     """
     check_texture(texture, channels=_CHANNELS)
-    size = target_size(texture.shape[0], texture.shape[1], scale)
+    size = _size_of(texture, scale)
     result = _pbd_float(texture.astype(np.float64) / 255.0, size)
     return np.floor(np.clip(result, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
-BASELINES: dict[str, Callable[[np.ndarray, int], np.ndarray]] = {
+BASELINES: dict[str, Callable[[np.ndarray, int | tuple[int, int]], np.ndarray]] = {
     "box": box,
     "bicubic": bicubic,
     "lanczos": lanczos,
     "pbd": pbd,
 }
-"""Baseline name -> ``fn(texture, scale) -> downsampled texture``."""
+"""Baseline name -> ``fn(texture, scale or (h, w)) -> downsampled texture``."""
 
 
 def downsample_texture(texture: np.ndarray, scale: int, method: str) -> np.ndarray:
@@ -316,7 +303,7 @@ def reference_texture(texture: np.ndarray, max_size: int = REFERENCE_MAX_SIZE) -
     cached = _REFERENCES.get(key)
     if cached is not None and cached[0]() is texture:
         return cached[1]
-    reduced = _pillow_resize(texture, size, Image.Resampling.LANCZOS)
+    reduced = resize_channels(texture, size, Image.Resampling.LANCZOS)
     reduced.flags.writeable = False  # shared by every caller
     if len(_REFERENCES) >= 8:
         del _REFERENCES[next(iter(_REFERENCES))]  # the oldest
@@ -331,35 +318,51 @@ def reference_size(height: int, width: int, max_size: int = REFERENCE_MAX_SIZE) 
     if longer <= max_size:
         return height, width
     return (
-        max(_round_ratio(height * max_size, longer), 1),
-        max(_round_ratio(width * max_size, longer), 1),
+        max(round_ratio(height * max_size, longer), 1),
+        max(round_ratio(width * max_size, longer), 1),
     )
 
 
-def reference_textures(mesh: TexturedMesh) -> list[np.ndarray | None]:
-    """The protocol's reference map of every material's base colour (None where untextured):
-    the one definition of "the reference textures" that methods, scores and the app use."""
+def reference_textures(
+    mesh: TexturedMesh, max_size: int | None = REFERENCE_MAX_SIZE
+) -> list[np.ndarray | None]:
+    """The reference map of every material's base colour (None where untextured): the one
+    definition of "the reference textures" that methods, scores and the app use.
+
+    ``max_size``: the protocol's cap (:data:`REFERENCE_MAX_SIZE`) for evaluation; None for
+    the product, which optimises against the full-resolution originals."""
     return [
-        None if m.base_color_texture is None else reference_texture(m.base_color_texture)
+        None if m.base_color_texture is None
+        else m.base_color_texture if max_size is None
+        else reference_texture(m.base_color_texture, max_size)
         for m in mesh.materials
-    ]
+    ]  # fmt: skip
 
 
-def output_sizes(mesh: TexturedMesh, scale: int) -> list[tuple[int, int] | None]:
-    """Per material the ``(h, w)`` of its base-colour map ``scale`` times smaller than its
-    reference map (None where untextured): the size every method returns.
+def output_sizes(
+    mesh: TexturedMesh,
+    rule: int | SizeRule,
+    max_size: int | None = REFERENCE_MAX_SIZE,
+) -> list[tuple[int, int] | None]:
+    """Per material the ``(h, w)`` its base-colour map ships at (None where untextured):
+    ``rule`` (a scale, or a :class:`~geoscaler.sizes.SizeRule`) applied to the reference map
+    of ``max_size`` (:func:`reference_textures`). The size every method returns.
 
     Raises:
         GeoscalerError: the scale is too large for a texture (the message names the material).
     """
+    rule = rule if isinstance(rule, SizeRule) else SizeRule(scale=check_scale(rule))
     sizes: list[tuple[int, int] | None] = []
     for material in mesh.materials:
         texture = material.base_color_texture
         if texture is None:
             sizes.append(None)
             continue
+        height, width = texture.shape[:2]
+        if max_size is not None:
+            height, width = reference_size(height, width, max_size)
         try:
-            sizes.append(target_size(*reference_size(*texture.shape[:2]), scale))
+            sizes.append(rule.size(height, width))
         except GeoscalerError as error:
             raise GeoscalerError(f"material {material.name!r}: {error}") from None
     return sizes

@@ -50,15 +50,21 @@ class Evaluation:
         supersample: samples per pixel side (2: 2 x 2 samples box-averaged).
         views: protocol view indices (0 .. ``VIEWS - 1``) standing for every view set, or None
             for all of them.
+        reference_max_size: originals longer than this are reduced to it before they are
+            rendered (:data:`REFERENCE_MAX_SIZE`); None renders the originals as they are,
+            as a downsampling job does (the product optimises against the full resolution).
     """
 
     image_size: int = IMAGE_SIZE
     supersample: int = SUPERSAMPLE
     views: tuple[int, ...] | None = None
+    reference_max_size: int | None = REFERENCE_MAX_SIZE
 
     def __post_init__(self) -> None:
         if self.image_size < 1 or self.supersample < 1:
             raise ValueError(f"image size and supersampling must be >= 1: {self}")
+        if self.reference_max_size is not None and self.reference_max_size < 1:
+            raise ValueError(f"reference_max_size must be >= 1 or None: {self}")
         if self.views is not None:
             if not self.views or any(not 0 <= i < VIEWS for i in self.views):
                 raise ValueError(f"views must be a non-empty subset of 0..{VIEWS - 1}: {self}")

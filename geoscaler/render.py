@@ -77,12 +77,16 @@ class Renderer:
             for texture in textures
         ]
 
+    def reference_maps(self) -> list[np.ndarray | None]:
+        """Per material the ``(H, W, C)`` uint8 map views of the original are rendered from:
+        the original, reduced to the evaluation's ``reference_max_size`` where it is longer
+        (:func:`geoscaler.filters.reference_textures`; None for untextured materials)."""
+        return reference_textures(self.mesh, self.evaluation.reference_max_size)
+
     def reference_textures(self) -> list[MipTexture | None]:
-        """Mip chains of the protocol's reference maps
-        (:func:`geoscaler.filters.reference_textures`; None for untextured materials), made
-        once per renderer (read only)."""
+        """Mip chains of :meth:`reference_maps`, made once per renderer (read only)."""
         if self._reference is None:
-            self._reference = self.mip_textures(reference_textures(self.mesh))
+            self._reference = self.mip_textures(self.reference_maps())
         return self._reference
 
     def rasterize(self, camera: Camera) -> GBuffer:

@@ -147,7 +147,9 @@ def geometry_maps(raster: UVRaster, mesh: TexturedMesh) -> torch.Tensor:
 
 
 def check_square(mesh: TexturedMesh) -> None:
-    """Raise a clear error for non-square textures, which the network does not handle."""
+    """Raise a clear error for what the network does not handle: non-square textures, and
+    one base-colour image shown by several materials (it makes one texture per material)."""
+    seen: dict[int, str] = {}
     for material in mesh.materials:
         texture = material.base_color_texture
         if texture is not None and texture.shape[0] != texture.shape[1]:
@@ -155,6 +157,14 @@ def check_square(mesh: TexturedMesh) -> None:
                 f"material {material.name!r}: texture is {texture.shape[1]}x{texture.shape[0]}; "
                 "the geoscaler network handles square textures only: use --method direct"
             )
+        if texture is not None and id(texture) in seen:
+            raise GeoscalerError(
+                f"materials {seen[id(texture)]!r} and {material.name!r} show one base-colour "
+                "image; the geoscaler network makes one texture per material: use --method "
+                "direct, which keeps the image shared"
+            )
+        if texture is not None:
+            seen[id(texture)] = material.name
 
 
 @dataclass
@@ -339,12 +349,22 @@ def reachable_masks(
 ) -> list[torch.Tensor | None]:
     """Per material the ``(h, w)`` bool texels (:func:`reachable_texels`) that views from at
     most ``farthest`` from the origin, ``samples_per_side`` samples wide, can read: a surface
-    point is at most the unit scene's radius farther. The other texels are gutters."""
+    point is at most the unit scene's radius farther. The other texels are gutters.
+
+    Materials that show one base-colour image (the same array) get the union of their masks:
+    a texel another material reads is not a gutter of the shared texture."""
     extent = sample_extent(farthest + 1.0, samples_per_side)
-    return [
+    masks = [
         None if size is None else reachable_texels(mesh, index, size, extent)
         for index, size in enumerate(sizes)
     ]
+    textures = [material.base_color_texture for material in mesh.materials]
+    for i, mask in enumerate(masks):
+        for j in range(len(masks)):
+            shared = textures[i] is not None and textures[j] is textures[i]
+            if j != i and shared and mask is not None and masks[j] is not None:
+                masks[i] = masks[i] | masks[j]
+    return masks
 
 
 def _touched_cells(corners: np.ndarray, height: int, width: int) -> torch.Tensor | None:

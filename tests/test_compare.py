@@ -110,9 +110,9 @@ def test_bicubic_runs_for_the_gain_but_is_only_shown_if_listed(mesh):
 def test_each_method_runs_once_per_scale_whatever_the_distances(mesh):
     calls = []
 
-    def counting(mesh, scale, options, context):
-        calls.append(scale)
-        return get_method("box").run(mesh, scale, options, context)
+    def counting(mesh, rule, options, context):
+        calls.append(rule.scale)
+        return get_method("box").run(mesh, rule, options, context)
 
     with registered("counting", counting):
         comparison = compare_mesh(

@@ -3,9 +3,18 @@
 
 from __future__ import annotations
 
-from geoscaler.filters import BASELINES, reference_textures
+from geoscaler.filters import BASELINES
 from geoscaler.mesh import TexturedMesh
-from geoscaler.methods.registry import MethodOptions, MethodResult, Run, RunContext, register
+from geoscaler.methods.registry import (
+    MethodOptions,
+    MethodResult,
+    Run,
+    RunContext,
+    output_sizes_for,
+    reference_maps,
+    register,
+)
+from geoscaler.sizes import SizeRule
 
 
 def filter_method(name: str) -> Run:
@@ -13,9 +22,13 @@ def filter_method(name: str) -> Run:
     resize = BASELINES[name]
 
     def run(
-        mesh: TexturedMesh, scale: int, options: MethodOptions, context: RunContext
+        mesh: TexturedMesh, rule: SizeRule, options: MethodOptions, context: RunContext
     ) -> MethodResult:
-        textures = [None if t is None else resize(t, scale) for t in reference_textures(mesh)]
+        sizes = output_sizes_for(mesh, rule, context.renderer)
+        maps = reference_maps(mesh, context.renderer)
+        textures = [
+            None if t is None else resize(t, size) for t, size in zip(maps, sizes, strict=True)
+        ]
         return MethodResult(textures)
 
     run.__doc__ = f"The filter {name!r} on each reference map."

@@ -10,11 +10,18 @@ import time
 
 import torch
 
-from geoscaler.filters import lanczos, reference_textures
+from geoscaler.filters import lanczos
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods.learned import fit, loop_config, method_renderer
-from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext, register
+from geoscaler.methods.registry import (
+    MethodOptions,
+    MethodResult,
+    RunContext,
+    output_sizes_for,
+    register,
+)
 from geoscaler.render import Renderer
+from geoscaler.sizes import SizeRule
 from geoscaler.texture import linear_to_srgb, srgb_to_linear, texture_to_linear
 
 # Texels are optimised as sRGB values (see TexelModel). Measured at 4x, 300 steps, no SSIM term:
@@ -33,16 +40,19 @@ class TexelModel:
     step is ~13 times more visible on a dark texel than on a bright one).
 
     Args:
-        textures: per material a ``(h, w, 3)`` linear start, or None (untextured).
+        textures: per material a ``(h, w, 3)`` linear start, or None (untextured); materials
+            given the same tensor share one set of texels (one image shown by both).
     """
 
     def __init__(self, textures: list[torch.Tensor | None]):
-        self.encoded = [
-            None if t is None else linear_to_srgb(t).detach().requires_grad_(True) for t in textures
-        ]
+        encoded: dict[int, torch.Tensor] = {}  # materials given one tensor share its texels
+        for t in textures:
+            if t is not None and id(t) not in encoded:
+                encoded[id(t)] = linear_to_srgb(t).detach().requires_grad_(True)
+        self.encoded = [None if t is None else encoded[id(t)] for t in textures]
 
     def parameters(self) -> list[torch.Tensor]:
-        return [t for t in self.encoded if t is not None]
+        return list({id(t): t for t in self.encoded if t is not None}.values())
 
     def candidate(self) -> tuple[list[torch.Tensor | None], None]:
         return [None if t is None else srgb_to_linear(t) for t in self.encoded], None
@@ -53,23 +63,26 @@ class TexelModel:
             texture.clamp_(0.0, 1.0)
 
 
-def lanczos_texel_model(mesh: TexturedMesh, scale: int, renderer: Renderer) -> TexelModel:
-    """Free texels started from Lanczos ``scale`` times smaller, on ``renderer``'s device."""
-    starts = [None if t is None else lanczos(t, scale) for t in reference_textures(mesh)]
-    return TexelModel(
-        [None if t is None else texture_to_linear(t, renderer.device) for t in starts]
-    )
+def lanczos_texel_model(mesh: TexturedMesh, rule: SizeRule, renderer: Renderer) -> TexelModel:
+    """Free texels started from ``renderer``'s reference maps resized with Lanczos to the
+    sizes ``rule`` gives, on ``renderer``'s device."""
+    sizes = output_sizes_for(mesh, rule, renderer)
+    starts: dict[int, torch.Tensor] = {}  # one start per distinct map: shared maps stay shared
+    for texture, size in zip(renderer.reference_maps(), sizes, strict=True):
+        if texture is not None and id(texture) not in starts:
+            starts[id(texture)] = texture_to_linear(lanczos(texture, size), renderer.device)
+    return TexelModel([None if t is None else starts[id(t)] for t in renderer.reference_maps()])
 
 
 def direct(
-    mesh: TexturedMesh, scale: int, options: MethodOptions, context: RunContext
+    mesh: TexturedMesh, rule: SizeRule, options: MethodOptions, context: RunContext
 ) -> MethodResult:
-    """Optimise the texels of Lanczos-initialised textures ``scale`` times smaller."""
+    """Optimise the texels of Lanczos-initialised textures at the sizes ``rule`` gives."""
     started = time.perf_counter()  # the time budget covers the set-up too
     renderer = method_renderer(mesh, options, context)
-    model = lanczos_texel_model(mesh, scale, renderer)
+    model = lanczos_texel_model(mesh, rule, renderer)
     config = loop_config(DEFAULT_CONFIG, options, context)
-    return fit(mesh, scale, renderer, model, config, context, started)
+    return fit(mesh, rule, renderer, model, config, context, started)
 
 
 register("direct", direct, learned=True, steps=lambda settings: DEFAULT_CONFIG["steps"])

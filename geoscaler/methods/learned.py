@@ -8,12 +8,12 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from geoscaler.filters import output_sizes
 from geoscaler.losses import PerceptualTerm
 from geoscaler.mesh import TexturedMesh
-from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext
+from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext, output_sizes_for
 from geoscaler.optimize import Model, OptimizeConfig, optimize
 from geoscaler.render import Renderer
+from geoscaler.sizes import SizeRule
 from geoscaler.texture import linear_to_texture
 from geoscaler.validation import Validation, validation_view_sets
 
@@ -35,7 +35,7 @@ def loop_config(
 
 def fit(
     mesh: TexturedMesh,
-    scale: int,
+    rule: SizeRule,
     renderer: Renderer,
     model: Model,
     config: OptimizeConfig,
@@ -48,7 +48,7 @@ def fit(
     """Optimise ``model`` and return its best validated candidate as 8-bit textures (and UVs).
 
     Args:
-        mesh, scale: the job.
+        mesh, rule: the job (``rule`` gives the output sizes).
         renderer: the mesh's renderer.
         model: the candidate's parameters.
         config: the loop's settings.
@@ -60,7 +60,8 @@ def fit(
     """
     validation = context.validation
     if validation is None:
-        validation = Validation(validation_view_sets(renderer), output_sizes(mesh, scale))
+        sizes = output_sizes_for(mesh, rule, renderer)
+        validation = Validation(validation_view_sets(renderer), sizes)
     result = optimize(
         renderer,
         model,

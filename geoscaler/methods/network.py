@@ -42,6 +42,7 @@ from geoscaler.nn.network import (
     parameter_count,
 )
 from geoscaler.nn.perceptual import perceptual_loss
+from geoscaler.sizes import SizeRule
 from geoscaler.texture import texture_to_linear
 from geoscaler.uvmaps import (
     check_square,
@@ -147,16 +148,26 @@ class NetworkModel:
         """Nothing to clamp: the network's outputs are valid by construction."""
 
 
+def network_scale(rule: SizeRule) -> int:
+    """The whole factor the network's architecture downsamples by: the rule's scale alone."""
+    if rule.scale is None or rule.max_size is not None or rule.power_of_two:
+        raise GeoscalerError(
+            f"sizes {rule.label}: the GeoScaler network downsamples by a whole factor, so it "
+            "takes --scale alone; use --method direct for --max-size or --power-of-two"
+        )
+    return rule.scale
+
+
 def network_inputs(
-    mesh: TexturedMesh, scale: int, device: torch.device
+    mesh: TexturedMesh, scale: int, device: torch.device, maps: list[np.ndarray | None]
 ) -> tuple[list[torch.Tensor | None], list[torch.Tensor | None], list[np.ndarray | None]]:
     """Per material: the encoder input, the output texture's UV raster, the Lanczos start.
 
-    The input is the protocol's reference map (resized with Lanczos to ``scale`` times the
+    The input is the reference map of ``maps`` (resized with Lanczos to ``scale`` times the
     output size when the two do not divide) with its geometry maps: ``(10, sH, sW)``.
     """
     inputs, rasters, starts = [], [], []
-    for index, texture in enumerate(reference_textures(mesh)):
+    for index, texture in enumerate(maps):
         if texture is None:
             inputs.append(None), rasters.append(None), starts.append(None)
             continue
@@ -173,11 +184,17 @@ def network_inputs(
 
 
 def build_network(
-    mesh: TexturedMesh, scale: int, config: NetworkConfig, device: torch.device
+    mesh: TexturedMesh,
+    scale: int,
+    config: NetworkConfig,
+    device: torch.device,
+    maps: list[np.ndarray | None] | None = None,
 ) -> NetworkModel:
-    """The network and everything it reads of ``mesh``, ready to train."""
+    """The network and everything it reads of ``mesh``, ready to train; it starts from
+    ``maps`` (default: the protocol's reference maps)."""
     check_square(mesh)
-    inputs, rasters, starts = network_inputs(mesh, scale, device)
+    maps = reference_textures(mesh) if maps is None else maps
+    inputs, rasters, starts = network_inputs(mesh, scale, device, maps)
     geometry = MeshGeometry(
         torch.from_numpy(np.asarray(mesh.uvs, np.float32)).to(device),
         torch.from_numpy(np.asarray(mesh.faces, np.int64)).to(device),
@@ -195,7 +212,7 @@ def build_network(
 
 
 def geoscaler_network(
-    mesh: TexturedMesh, scale: int, options: MethodOptions, context: RunContext
+    mesh: TexturedMesh, rule: SizeRule, options: MethodOptions, context: RunContext
 ) -> MethodResult:
     """Train the GeoScaler network on ``mesh`` and return its texture (and UVs).
 
@@ -203,13 +220,14 @@ def geoscaler_network(
     ``"vgg19"`` (path of VGG-19 weights for the perceptual term), ``"optimize"`` overrides.
     """
     started = time.perf_counter()  # the time budget covers building the network too
+    scale = network_scale(rule)
     variant = check_variant(options.settings.get("variant") or DEFAULT_VARIANT)
     preset_name = check_preset(options.settings.get("preset") or DEFAULT_PRESET)
     preset = PRESETS[preset_name]
     renderer = method_renderer(mesh, options, context)
     torch.manual_seed(options.seed)
     config = replace(preset.network, variant=variant)
-    model = build_network(mesh, scale, config, renderer.device)
+    model = build_network(mesh, scale, config, renderer.device, renderer.reference_maps())
 
     perceptual, perceptual_note = None, "off in this preset"
     if preset.perceptual_weight > 0:
@@ -225,7 +243,7 @@ def geoscaler_network(
     }
     result = fit(
         mesh,
-        scale,
+        rule,
         renderer,
         model,
         loop,

@@ -1,8 +1,10 @@
 """The registry of downsampling methods: what a method is, what it is handed, what it returns.
 
-A method takes a mesh and an integer scale and returns 8-bit textures ``scale`` times smaller
-(one per textured material) and, if it moves them, new UVs. Every method starts from the
-protocol's reference maps (:func:`geoscaler.filters.reference_textures`). A *learned* method
+A method takes a mesh and a :class:`~geoscaler.sizes.SizeRule` (a scale, a longest side...)
+and returns 8-bit textures at the sizes the rule gives (one per textured material) and, if it
+moves them, new UVs. Every method starts from the reference maps (:func:`reference_maps`: the
+protocol's, originals over 2048 reduced, or a downsampling job's full-resolution originals),
+and the rule applies to them (:func:`output_sizes_for`). A *learned* method
 optimises through the renderer: it takes steps, a time budget and a run context from the job;
 a filter ignores them.
 
@@ -20,9 +22,12 @@ from typing import Any
 import numpy as np
 
 from geoscaler.errors import GeoscalerError
+from geoscaler.filters import output_sizes, reference_textures
 from geoscaler.mesh import TexturedMesh
 from geoscaler.optimize import Controller, ProgressEvent
+from geoscaler.protocol import REFERENCE_MAX_SIZE
 from geoscaler.render import Renderer
+from geoscaler.sizes import SizeRule, check_scale
 from geoscaler.validation import Validation
 
 
@@ -88,7 +93,26 @@ class MethodResult:
     details: dict[str, Any] = field(default_factory=dict)
 
 
-Run = Callable[[TexturedMesh, int, MethodOptions, RunContext], MethodResult]
+Run = Callable[[TexturedMesh, SizeRule, MethodOptions, RunContext], MethodResult]
+
+
+def reference_maps(mesh: TexturedMesh, renderer: Renderer | None) -> list[np.ndarray | None]:
+    """The maps a method starts from: ``renderer``'s (its evaluation's cap), or the
+    protocol's without one."""
+    return reference_textures(mesh) if renderer is None else renderer.reference_maps()
+
+
+def output_sizes_for(
+    mesh: TexturedMesh, rule: SizeRule, renderer: Renderer | None
+) -> list[tuple[int, int] | None]:
+    """Per material the ``(h, w)`` a method returns: ``rule`` on :func:`reference_maps`."""
+    cap = REFERENCE_MAX_SIZE if renderer is None else renderer.evaluation.reference_max_size
+    return output_sizes(mesh, rule, cap)
+
+
+def as_rule(scale: int | SizeRule) -> SizeRule:
+    """A scale (a whole number >= 2) as the rule that divides each side by it."""
+    return scale if isinstance(scale, SizeRule) else SizeRule(scale=check_scale(scale))
 
 
 @dataclass(frozen=True)
@@ -166,11 +190,12 @@ def is_learned(name: str) -> bool:
 def run_method(
     name: str,
     mesh: TexturedMesh,
-    scale: int,
+    scale: int | SizeRule,
     options: MethodOptions | None = None,
     context: RunContext | None = None,
 ) -> MethodResult:
-    """Run a registered method and time it, wall clock, set-up included.
+    """Run a registered method at ``scale`` (a whole number, or any :class:`SizeRule`) and
+    time it, wall clock, set-up included.
 
     Without a ``context`` the method gets the whole of ``options.time_budget``.
     """
@@ -180,6 +205,6 @@ def run_method(
         options = replace(options, settings={**options.settings, **method.settings})
     context = context or RunContext(time_budget=options.time_budget)
     start = time.perf_counter()
-    result = method.run(mesh, scale, options, context)
+    result = method.run(mesh, as_rule(scale), options, context)
     result.seconds = time.perf_counter() - start
     return result
