@@ -20,6 +20,7 @@ import moderngl
 import numpy as np
 from imgui_bundle import hello_imgui, imgui, immapp
 
+from geoscaler.downsampling import Job, check_output_name, export
 from geoscaler.errors import GeoscalerError
 from geoscaler.io import (
     SUPPORTED_SUFFIXES,
@@ -29,10 +30,11 @@ from geoscaler.io import (
     save_png,
     write_atomically,
 )
-from geoscaler.job import Job, check_output_name, checked_output_sizes, export
+from geoscaler.job import checked_output_sizes
 from geoscaler.mesh import TexturedMesh
 from geoscaler.procedural import demo_mesh
 from geoscaler.report import dumps, report_document
+from geoscaler.sizes import size_plan
 
 from .panels import BookmarksPanel, ExportPanel, OptimisePanel, Panel, PlotsPanel, UVPanel
 from .session import DEMO_NAME, Session
@@ -258,18 +260,20 @@ class App:
         report = output.with_suffix(".json")
         check_output(report, force=overwrite, inputs=[mesh_path, *session.mesh.source_files])
         settings = training.settings
+        plan = size_plan({"all": settings.scale}, {})
         job = Job(
             mesh_path,
             session.mesh,
             output,
-            settings.scale,
+            plan,
             settings.method,
             training.options,
             overwrite,
             report,
         )
-        written = export(session.mesh, done.result, output, overwrite)
-        document = report_document(job, done, training.seconds)
+        shipped = done.result.details.get("shipped", settings.method)
+        written, done.maps = export(session.mesh, done.result, output, plan, shipped, overwrite)
+        document = report_document(job, done, training.seconds, written)
         text = _json(document)
         write_atomically(report, lambda tmp: tmp.write_text(text))
         written.append(report)

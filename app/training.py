@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from geoscaler.arguments import DEFAULT_TIME_BUDGET, check_method, check_scale, method_options
+from geoscaler.downsampling import product_evaluation
 from geoscaler.job import Downsampled, JobObserver, checked_output_sizes, downsample
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods import default_steps, is_learned
@@ -207,7 +208,7 @@ class Training:
         try:
             self._set(phase="caching validation views")
             settings = self.settings
-            renderer = Renderer(self.mesh, "cpu", settings.evaluation)
+            renderer = Renderer(self.mesh, "cpu", product_evaluation(settings.evaluation))
             done = downsample(
                 self.mesh,
                 settings.scale,

@@ -6,8 +6,9 @@ import argparse
 import json
 import os
 import sys
+import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -16,7 +17,7 @@ from geoscaler.errors import GeoscalerError
 from geoscaler.protocol import PROTOCOL, PROTOCOL_EVALUATION, Evaluation
 
 if TYPE_CHECKING:
-    from geoscaler.job import Downsampled, Job
+    pass
 
 DEFAULT_DEMO_DIR = Path("assets")
 
@@ -109,15 +110,18 @@ def cmd_render(args: argparse.Namespace) -> None:
     print(f"wrote {out} (view {view} at distance {camera.distance}, {image.shape[1]} px)")
 
 
-def cmd_downsample(args: argparse.Namespace) -> None:
+def job_settings(args: argparse.Namespace) -> dict[str, Any]:
+    """The checked settings of a downsampling job from :func:`add_job_arguments`' options:
+    the keyword arguments of :func:`geoscaler.downsampling.prepare` but the mesh and output."""
     from geoscaler.arguments import (
         DEFAULT_TIME_BUDGET,
+        check_image_format,
         check_method,
+        check_size_plan,
         check_variant,
         method_options,
         method_settings,
     )
-    from geoscaler.job import prepare
 
     settings = method_settings(args)
     method = check_method(args.method)
@@ -134,141 +138,41 @@ def cmd_downsample(args: argparse.Namespace) -> None:
         settings,
         default_budget=DEFAULT_TIME_BUDGET,
     )
-    from geoscaler.console import process_started_at
+    return {
+        "sizes": check_size_plan(args.scale, args.max_size, args.power_of_two),
+        "method": method,
+        "options": options,
+        "force": args.force,
+        "image_format": check_image_format(args.image_format),
+    }
 
+
+def cmd_downsample(args: argparse.Namespace) -> None:
+    from geoscaler.downsampling import prepare
+
+    settings = job_settings(args)
     job = prepare(
         args.mesh,
         args.output,
-        args.scale,
-        method,
-        options,
-        args.force,
-        args.report,
-        started_at=process_started_at(),  # the budget is the whole command's wall clock
+        report=args.report,
+        started_at=args.started_at,  # the budget is the whole command's wall clock
+        **settings,
     )
+    from geoscaler.runner import downsample_and_report
+
     downsample_and_report(job, args.evaluation)
 
 
-def downsample_and_report(
-    job: Job, evaluation: Evaluation = PROTOCOL_EVALUATION, progress: bool = True, say=print
-) -> tuple[Downsampled, dict]:
-    """Run a prepared job with a progress bar, write its report, print what was done.
-
-    A first Ctrl-C stops the optimisation and the best result so far is still written; a
-    second raises KeyboardInterrupt. Returns ``(Downsampled, report document)``.
-    """
-    import time
-
-    from geoscaler.console import DownsampleProgress, stop_on_interrupt
-    from geoscaler.io import write_atomically
-    from geoscaler.job import run_job
-    from geoscaler.methods import is_learned
-    from geoscaler.optimize import Controller
-    from geoscaler.render import Renderer
-    from geoscaler.report import dumps, format_report, report_document
-
-    start = time.perf_counter()
-    controller = Controller()
-    renderer = Renderer(job.mesh, job.options.device, evaluation)
-    bar = DownsampleProgress(progress, is_learned(job.method))
-    try:
-        with stop_on_interrupt(controller, bar.write):
-            done, written = run_job(job, renderer, bar, controller)
-            bar.close()
-            try:
-                document = report_document(job, done, time.perf_counter() - start)
-                if job.report is not None:
-                    text = dumps(document) + "\n"
-                    write_atomically(job.report, lambda tmp: tmp.write_text(text))
-                    written.append(job.report)
-            except BaseException:  # a failed run leaves no output behind
-                for path in written:
-                    Path(path).unlink(missing_ok=True)
-                raise
-    finally:
-        bar.close()
-    say(format_report(document))
-    for path in written:
-        say(f"wrote {path}")
-    return done, document
-
-
-DEMO_MESH_NAME = "geoscaler_demo.glb"
-DEMO_SCALE = 4
-DEMO_TIME_BUDGET = 75.0
-DEMO_STEPS = 120
-"""Budget and step limit of ``direct`` in ``geoscaler demo``, caches included. Measured on the
-idle 2-core machine (CPU, 2 torch threads): Q and its texture taps 19 s, training views 3 s,
-about 0.17 s a step, scoring 1 s; ``geoscaler demo`` took 56 s in all (120 steps, +0.59 dB
-PSNR-fg over bicubic). The step limit lets the cosine schedule end where the machine is fast
-enough; the budget bounds the demo's time where it is not. On a machine shared with other CPU
-work the demo takes longer and may run few or no steps."""
-
-
-def demo(
-    out_dir: str | Path,
-    device: str = "auto",
-    time_budget: float | None = None,
-    steps: int | None = None,
-    progress: bool = True,
-    say=print,
-    evaluation: Evaluation = PROTOCOL_EVALUATION,
-    optimize: dict | None = None,
-) -> dict:
-    """``geoscaler demo``: build (or reuse) the demo asset in ``out_dir`` and downsample it.
-
-    Writes ``geoscaler_demo_x4.glb``, its report ``geoscaler_demo_x4.json`` and the picture
-    ``demo_comparison.png`` (original | bicubic | direct on three views) into ``out_dir``,
-    replacing earlier demo outputs. ``time_budget`` of ``direct``: :data:`DEMO_TIME_BUDGET`
-    by default. Returns the report.
-    """
-    from geoscaler.arguments import method_options
-    from geoscaler.console import process_started_at
-    from geoscaler.io import check_output, prepare_folder, save_mesh, save_png
-    from geoscaler.job import prepare
-    from geoscaler.procedural import demo_mesh
-    from geoscaler.protocol import GAIN_REFERENCE
-    from geoscaler.render import Renderer
-    from geoscaler.report import comparison_picture
-
-    out_dir = prepare_folder(out_dir)
-    mesh_path = out_dir / DEMO_MESH_NAME
-    if mesh_path.exists():
-        say(f"using the demo asset {mesh_path}")
-    else:
-        say(f"building the demo asset into {mesh_path}")
-        save_mesh(demo_mesh(), mesh_path)
-    stem = f"{mesh_path.stem}_x{DEMO_SCALE}"
-    picture = check_output(out_dir / "demo_comparison.png", force=True, inputs=[mesh_path])
-    budget = DEMO_TIME_BUDGET if time_budget is None else time_budget
-    steps = DEMO_STEPS if steps is None else steps
-    settings = {"optimize": dict(optimize)} if optimize else {}
-    options = method_options(["direct"], device, 0, steps, budget, settings)
-    job = prepare(
-        mesh_path,
-        out_dir / f"{stem}.glb",
-        DEMO_SCALE,
-        "direct",
-        options,
-        force=True,
-        report=out_dir / f"{stem}.json",
-        started_at=process_started_at(),
-    )
-    done, document = downsample_and_report(job, evaluation, progress=progress, say=say)
-    sheet = comparison_picture(
-        job.mesh,
-        done.comparison,
-        DEMO_SCALE,
-        [GAIN_REFERENCE, "direct"],
-        renderer=Renderer(job.mesh, device, evaluation),
-    )
-    save_png(picture, sheet)
-    say(f"wrote {picture}: original | bicubic | direct on three views, zoom and error heatmap")
-    return document
-
-
 def cmd_demo(args: argparse.Namespace) -> None:
-    demo(args.out, args.device, evaluation=args.evaluation, optimize=args.optimize)
+    from geoscaler.runner import demo
+
+    demo(
+        args.out,
+        args.device,
+        evaluation=args.evaluation,
+        optimize=args.optimize,
+        started_at=args.started_at,
+    )
 
 
 def cmd_view(args: argparse.Namespace) -> None:
@@ -344,7 +248,7 @@ def cmd_bench(args: argparse.Namespace) -> None:
     command(args)
 
 
-def cmd_batch(args: argparse.Namespace) -> None:
+def cmd_batch(args: argparse.Namespace) -> int:
     """``geoscaler batch``: the main job over every asset under IN_DIR; the exit status is the
     number of assets that failed (at most 125)."""
     from dataclasses import replace
@@ -357,9 +261,7 @@ def cmd_batch(args: argparse.Namespace) -> None:
     settings = job_settings(checked)
     if on_workers:
         settings["options"] = replace(settings["options"], device="cuda")
-    failed = command(args, settings)
-    if failed:
-        raise SystemExit(failed)
+    return command(args, settings)
 
 
 def _add_network_arguments(parser: argparse.ArgumentParser, variants: str) -> None:
@@ -415,6 +317,74 @@ def _add_method_arguments(parser: argparse.ArgumentParser, scales: list[int]) ->
     )
 
 
+def add_job_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of a downsampling job: sizes, image format, method, budget, device, seed,
+    force (``downsample`` and ``batch`` take the same)."""
+    parser.add_argument(
+        "--scale",
+        action="append",
+        type=_class_value,
+        metavar="[CLASS=]S",
+        help="reduction factor per side, a whole number >= 2, for every texture or, as "
+        "CLASS=S, for one class: color, normal or data (repeatable; default 4 when neither "
+        "--scale nor --max-size is given: 4096 -> 1024)",
+    )
+    parser.add_argument(
+        "--max-size",
+        action="append",
+        type=_class_value,
+        metavar="[CLASS=]N",
+        help="longest side of a texture at most N texels, aspect kept (repeatable, per class "
+        "as --scale)",
+    )
+    parser.add_argument(
+        "--power-of-two",
+        action="store_true",
+        help="round each side to the nearest power of two (never above --max-size)",
+    )
+    parser.add_argument(
+        "--image-format",
+        help="png, jpeg or webp for every image written (default: each in its input's "
+        "format; webp through EXT_texture_webp)",
+    )
+    parser.add_argument(
+        "--method",
+        default="direct",
+        help="direct (default: optimised through the renderer), geoscaler (the network), "
+        "lanczos, bicubic, box or pbd",
+    )
+    _add_network_arguments(
+        parser,
+        "with --method geoscaler: base, gcm (GeoCoding), uvw (UVWarper) or full (default)",
+    )
+    parser.add_argument(
+        "--time-budget",
+        type=float,
+        help="wall-clock seconds the whole command may take with a learned method: loading, "
+        "view caching, optimisation, scoring and export (default 60)",
+    )
+    parser.add_argument(
+        "--steps", type=int, help="maximum optimisation steps (default: the method's, 300)"
+    )
+    _add_device_argument(parser)
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument(
+        "--force", action="store_true", help="replace existing outputs (never the input)"
+    )
+
+
+def _class_value(text: str) -> str:
+    """argparse type of ``--scale`` and ``--max-size``: ``N`` or ``CLASS=N`` (the values are
+    checked with the other errors, :func:`geoscaler.arguments.check_size_plan`)."""
+    from geoscaler.sizes import parse_class_value
+
+    try:
+        parse_class_value(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+    return text
+
+
 def _scale_factor(text: str) -> int:
     """argparse type of ``--scale``: a whole number (>= 2 is checked with the other errors)."""
     try:
@@ -467,38 +437,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     downsample.add_argument("mesh", metavar="MESH", help="OBJ, glTF or GLB file (never modified)")
     downsample.add_argument(
-        "--scale",
-        type=_scale_factor,
-        default=4,
-        help="reduction factor per side, a whole number >= 2 (default 4: 2048 -> 512)",
-    )
-    downsample.add_argument(
         "-o", "--output", required=True, metavar="OUT", help="mesh to write: .glb, .gltf or .obj"
     )
-    downsample.add_argument(
-        "--method",
-        default="direct",
-        help="direct (default: optimised through the renderer), geoscaler (the network), "
-        "lanczos, bicubic, box or pbd",
-    )
-    _add_network_arguments(
-        downsample,
-        "with --method geoscaler: base, gcm (GeoCoding), uvw (UVWarper) or full (default)",
-    )
-    downsample.add_argument(
-        "--time-budget",
-        type=float,
-        help="wall-clock seconds the whole command may take with a learned method: loading, "
-        "view caching, optimisation, scoring and export (default 60)",
-    )
-    downsample.add_argument(
-        "--steps", type=int, help="maximum optimisation steps (default: the method's, 300)"
-    )
-    _add_device_argument(downsample)
-    downsample.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    downsample.add_argument(
-        "--force", action="store_true", help="replace existing outputs (never the input)"
-    )
+    add_job_arguments(downsample)
     downsample.add_argument("--report", help="also write the report as JSON to this file")
     downsample.set_defaults(run=cmd_downsample)
 
@@ -620,22 +561,29 @@ def main(
     ``evaluation`` and ``optimize`` are for callers that are not users (tests, quick checks):
     fewer or smaller views, and overrides of the learned methods' loop settings. The command
     line itself always runs protocol 1 with each method's own settings.
+
+    A job's time budget counts from the command's start: the process's start when the
+    command line is the process (``argv`` None: the interpreter's start and the imports
+    count), else this call's.
     """
+    from geoscaler.console import process_started_at
+
+    started_at = process_started_at() if argv is None else time.perf_counter()
     # Idle OpenMP threads sleep instead of spinning: beside another CPU-bound process, spinning
     # threads wait for each other at every parallel region (README, "Busy machines"). Only
     # takes effect before torch is first imported, as it is by the commands below.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     args = build_parser().parse_args(argv)
-    args.evaluation, args.optimize = evaluation, optimize
+    args.evaluation, args.optimize, args.started_at = evaluation, optimize, started_at
     try:
-        args.run(args)
+        status = args.run(args) or 0  # a command returns nothing, or its exit status
     except GeoscalerError as error:
         print(f"geoscaler: error: {printable(str(error))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("geoscaler: interrupted", file=sys.stderr)
         return 130
-    return 0
+    return status
 
 
 if __name__ == "__main__":

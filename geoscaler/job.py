@@ -24,31 +24,26 @@ from typing import Any
 
 import numpy as np
 
-from geoscaler.arguments import check_distances, check_method, check_scale, check_scales
+from geoscaler.arguments import check_distances, check_method, check_rules
 from geoscaler.cameras import spread_order, view_set_cameras
 from geoscaler.errors import GeoscalerError
-from geoscaler.filters import lanczos, output_sizes, reference_texture
+from geoscaler.filters import output_sizes
 from geoscaler.io import (
     check_output,
-    check_outputs,
-    load_mesh,
-    output_files,
     prepare_folder,
-    save_mesh,
 )
-from geoscaler.mesh import TexturedMesh, check_geometry
+from geoscaler.maps import resize_alpha
+from geoscaler.mesh import Material, TexturedMesh, check_geometry
 from geoscaler.methods import MethodOptions, MethodResult, RunContext, is_learned, run_method
 from geoscaler.optimize import Controller, ProgressEvent
-from geoscaler.protocol import GAIN_REFERENCE, VALIDATION_DISTANCE
+from geoscaler.protocol import GAIN_REFERENCE, REFERENCE_MAX_SIZE, VALIDATION_DISTANCE
 from geoscaler.render import Renderer
 from geoscaler.rows import protocol_row, validation_row
+from geoscaler.shipping import ShippedMap, alpha_cutoff
+from geoscaler.sizes import SizeRule
 from geoscaler.validation import Validation, validation_view_sets
 from geoscaler.views import ViewCache, ViewSet
 
-OUTPUT_SUFFIXES = (".glb", ".gltf", ".obj")
-EXPORT_RESERVE = 2.0
-"""Seconds a downsampling job keeps for writing its files and report after scoring (on the
-2-core machine a 2048 x 2048 scan texture encodes to PNG in 0.4 s, a 4096 x 4096 one in 1.3 s)."""
 REPORT_BASELINES = ("bicubic", "lanczos")
 """Methods a downsampling job always scores beside its result (bicubic is the gain's zero)."""
 
@@ -63,8 +58,9 @@ class JobObserver:
         """The view set at ``distance``: Q as the job starts (its views are cached while the
         methods run), the protocol's other sets once cached."""
 
-    def method_started(self, name: str, scale: int, time_budget: float | None) -> None:
-        """Method ``name`` starts at ``scale``; a learned one has ``time_budget`` seconds."""
+    def method_started(self, name: str, scale: int | str, time_budget: float | None) -> None:
+        """Method ``name`` starts at ``scale`` (a rule's label: 4, or "x4, <= 1024"); a
+        learned one has ``time_budget`` seconds."""
 
     def on_event(self, event: ProgressEvent) -> None:
         """A learned method's optimisation loop reports."""
@@ -78,45 +74,52 @@ class Comparison:
     """What :func:`compare_mesh` measured.
 
     Attributes:
-        rows: one dict per (distance, scale, listed method), keys :data:`ROW_KEYS`.
-        outputs: ``(method, scale)`` -> the method's result as it ships (bicubic included).
+        rows: one dict per (distance, scale, listed method), keys :data:`ROW_KEYS`; ``scale``
+            is the size rule's label (4, or "x4, <= 1024").
+        outputs: ``(method, rule label)`` -> the method's result as it ships (bicubic
+            included).
         foreground: distance -> ``(N,)`` int64 foreground pixels of each view's reference.
         view_indices: the protocol view indices scored (0..59), the same at every distance.
         device: the torch device the views were rendered on.
     """
 
     rows: list[dict[str, Any]]
-    outputs: dict[tuple[str, int], MethodResult]
+    outputs: dict[tuple[str, int | str], MethodResult]
     foreground: dict[float, np.ndarray] = field(default_factory=dict)
     view_indices: list[int] = field(default_factory=list)
     device: str = "cpu"
 
 
-def checked_output_sizes(mesh: TexturedMesh, scale: int) -> list[tuple[int, int] | None]:
-    """:func:`geoscaler.filters.output_sizes`, refusing a mesh with nothing to downsample."""
+def checked_output_sizes(
+    mesh: TexturedMesh, scale: int | SizeRule, max_size: int | None = REFERENCE_MAX_SIZE
+) -> list[tuple[int, int] | None]:
+    """:func:`geoscaler.filters.output_sizes` of a scale or rule, refusing a bad scale and a
+    mesh with nothing to downsample."""
+    (rule,) = check_rules([scale])
     try:
-        sizes = output_sizes(mesh, scale)
+        sizes = output_sizes(mesh, rule, max_size)
     except GeoscalerError as error:
-        raise GeoscalerError(f"--scale {scale}: {error}") from None
+        raise GeoscalerError(f"--scale {rule.label}: {error}") from None
     if all(size is None for size in sizes):
         raise GeoscalerError("the mesh has no base-colour texture; there is nothing to downsample")
     return sizes
 
 
 def ship_textures(
-    mesh: TexturedMesh, textures: Sequence[np.ndarray | None], scale: int
+    textures: Sequence[np.ndarray | None],
+    references: Sequence[np.ndarray | None],
+    materials: Sequence[Material],
 ) -> list[np.ndarray | None]:
-    """The method's textures as they will be written: where the original has alpha and the
-    method returned RGB only (learned methods optimise colour), the reference map's alpha is
-    downsampled with Lanczos and appended, so cut-outs survive. (The reference map, a resize of
-    the original when it is over 2048 texels, is made only where alpha is needed.)"""
+    """The method's textures as they will be written: where the reference map has alpha and
+    the method returned RGB only (learned methods optimise colour), the reference's alpha is
+    resized to the texture's size and appended (:func:`geoscaler.maps.resize_alpha`: a
+    ``MASK`` material keeps its coverage), so cut-outs survive."""
     shipped: list[np.ndarray | None] = []
-    for texture, material in zip(textures, mesh.materials, strict=True):
-        original = material.base_color_texture
+    for texture, original, material in zip(textures, references, materials, strict=True):
         if texture is not None and original is not None:
             if texture.shape[2] == 3 and original.shape[2] in (2, 4):
-                alpha = reference_texture(original)[..., -1:]
-                alpha = lanczos(np.ascontiguousarray(alpha), scale)
+                cutoff = alpha_cutoff(material)
+                alpha = resize_alpha(original[..., -1], texture.shape[:2], cutoff)
                 texture = np.concatenate([texture, alpha.reshape(*texture.shape[:2], 1)], axis=2)
         shipped.append(texture)
     return shipped
@@ -179,16 +182,18 @@ def compare_mesh(
             texture, or a method's own error.
     """
     check_geometry(mesh, mesh.source_path or "the mesh")
-    scales = check_scales(scales)
+    rules = check_rules(scales)
     distances = [VALIDATION_DISTANCE] if rows_on == "validation" else check_distances(distances)
     listed = [check_method(name) for name in methods]
     options = options or MethodOptions()
     observer = observer or JobObserver()
-    sizes = {scale: checked_output_sizes(mesh, scale) for scale in scales}
     to_run = listed if GAIN_REFERENCE in listed else [*listed, GAIN_REFERENCE]
     filters = [name for name in to_run if not is_learned(name)]
     learned = [name for name in to_run if is_learned(name)]
     renderer = renderer or Renderer(mesh, options.device)
+    cap = renderer.evaluation.reference_max_size
+    sizes = {rule.label: checked_output_sizes(mesh, rule, cap) for rule in rules}
+    scales = [rule.label for rule in rules]
     comparison = Comparison([], {}, device=str(renderer.device))
     view_sets = validation_view_sets(renderer)
     observer.views_cached(VALIDATION_DISTANCE, view_sets["Q"])
@@ -196,12 +201,12 @@ def compare_mesh(
     comparison.view_indices = [renderer.evaluation.view_indices[i] for i in q_order]
     steps = len(scales) * len(to_run) * (1 + len(distances))
     progress = _Stages(observer, steps + len(distances))
-    scores: dict[tuple[float, str, int], dict[str, Any]] = {}
-    for scale in scales:
+    scores: dict[tuple[float, str, int | str], dict[str, Any]] = {}
+    for rule, scale in zip(rules, scales, strict=True):
         outputs: dict[str, MethodResult] = {}
         for name in filters:
             progress.step(f"{name} x{scale}")
-            outputs[name] = _run(mesh, scale, name, options, renderer, None, None, observer)
+            outputs[name] = _run(mesh, rule, name, options, renderer, None, None, observer)
         scorings_after = len(to_run) if rows_on == "validation" else 0
         baselines = {name: outputs[name].textures for name in filters}
         validation = Validation(view_sets, sizes[scale], baselines, scorings_after)
@@ -214,7 +219,7 @@ def compare_mesh(
                 renderer, validation, controller, observer.on_event, budget, reserve
             )
             method_start = time.perf_counter()
-            result = _run(mesh, scale, name, options, renderer, context, budget, observer)
+            result = _run(mesh, rule, name, options, renderer, context, budget, observer)
             if started_at is not None and "first_step_seconds" in result.details:
                 first = method_start - started_at + result.details["first_step_seconds"]
                 result.details["first_step_after_start"] = round(first, 3)
@@ -291,14 +296,14 @@ def _cache_for_rows(
 def _score_protocol_sets(
     comparison: Comparison,
     mesh: TexturedMesh,
-    scales: Sequence[int],
+    scales: Sequence[int | str],
     names: Sequence[str],
     distances: Sequence[float],
     q: ViewSet,
     progress: _Stages,
     observer: JobObserver,
-    scores: dict[tuple[float, str, int], dict[str, Any]],
-    sizes: dict[int, list[tuple[int, int] | None]],
+    scores: dict[tuple[float, str, int | str], dict[str, Any]],
+    sizes: dict[int | str, list[tuple[int, int] | None]],
 ) -> None:
     """Score every output on all views of the protocol's sets at ``distances`` (Q's views are
     the validation's, completed here)."""
@@ -360,7 +365,7 @@ def no_worse_than_filters(
 
 def _run(
     mesh: TexturedMesh,
-    scale: int,
+    rule: SizeRule,
     name: str,
     options: MethodOptions,
     renderer: Renderer,
@@ -370,53 +375,11 @@ def _run(
 ) -> MethodResult:
     """Run one method as the job does: a learned one with the job's ``context`` (renderer,
     validation, ``budget`` seconds); every output with its alpha re-attached as it will ship."""
-    observer.method_started(name, scale, budget if is_learned(name) else None)
-    result = run_method(name, mesh, scale, options, context if is_learned(name) else None)
-    result.textures = ship_textures(mesh, result.textures, scale)
+    observer.method_started(name, rule.label, budget if is_learned(name) else None)
+    context = context if is_learned(name) else RunContext(renderer)
+    result = run_method(name, mesh, rule, options, context)
+    result.textures = ship_textures(result.textures, renderer.reference_maps(), mesh.materials)
     return result
-
-
-# ----------------------------------------------------------------------------- downsampling
-
-
-@dataclass
-class Job:
-    """A checked downsampling job, its mesh loaded.
-
-    Attributes:
-        mesh_path: the input file (never written).
-        mesh: the loaded mesh.
-        output: the mesh file to write; ``output_files`` are all the files that go with it.
-        scale, method, options: what to run.
-        force: replace existing outputs.
-        report: the JSON report to write, or None.
-        sizes: per material the output texture size ``(h, w)`` (None: untextured).
-        started_at: the ``time.perf_counter()`` its time budget counts from (the command's
-            start: loading the mesh included).
-    """
-
-    mesh_path: Path
-    mesh: TexturedMesh
-    output: Path
-    scale: int
-    method: str
-    options: MethodOptions
-    force: bool = False
-    report: Path | None = None
-    output_files: list[Path] = field(default_factory=list)
-    sizes: list[tuple[int, int] | None] = field(default_factory=list)
-    started_at: float = field(default_factory=time.perf_counter)
-
-
-def check_output_name(output: str | Path, mesh_path: Path, force: bool) -> Path:
-    """OUT's suffix, folder and existence, before the mesh is even read."""
-    output = Path(output)
-    if output.suffix.lower() not in OUTPUT_SUFFIXES:
-        raise GeoscalerError(
-            f"-o {output}: the output format comes from the suffix; use one of "
-            f"{', '.join(OUTPUT_SUFFIXES)}"
-        )
-    return check_output(output, force=force, inputs=[mesh_path])
 
 
 def prepare_out_dir(
@@ -425,62 +388,6 @@ def prepare_out_dir(
     """Create the folder ``out`` if needed and check every output file in it before work."""
     folder = prepare_folder(out)
     return [check_output(folder / name, force=force, inputs=inputs) for name in names]
-
-
-def _check_distinct(report: Path, others: Sequence[Path], what: str) -> None:
-    for other in others:
-        if report.resolve() == Path(other).resolve():
-            raise GeoscalerError(f"--report {report}: is {what}; choose another name")
-
-
-def prepare(
-    mesh_path: str | Path,
-    output: str | Path,
-    scale: Any,
-    method: str,
-    options: MethodOptions,
-    force: bool = False,
-    report: str | Path | None = None,
-    started_at: float | None = None,
-) -> Job:
-    """Check everything that can be checked, load the mesh, and return the :class:`Job`.
-
-    ``started_at``: the ``time.perf_counter()`` the job's time budget counts from (default:
-    now; the CLI passes its process's start).
-
-    Raises:
-        GeoscalerError: a bad scale or method, an output name, folder or suffix; an output
-            that is an input file (even with ``force``) or exists without ``force``; an
-            unreadable mesh; a scale larger than a texture.
-    """
-    started_at = time.perf_counter() if started_at is None else started_at
-    mesh_path = Path(mesh_path)
-    scale = check_scale(scale)
-    method = check_method(method)
-    output = check_output_name(output, mesh_path, force)
-    report_path = None
-    if report is not None:
-        report_path = check_output(report, force=force, inputs=[mesh_path])
-        _check_distinct(report_path, [output], "the output mesh")
-    mesh = load_mesh(mesh_path)
-    sizes = checked_output_sizes(mesh, scale)
-    files = check_outputs(output_files(mesh, output), force=force, inputs=mesh.source_files)
-    if report_path is not None:
-        check_output(report_path, force=force, inputs=mesh.source_files)
-        _check_distinct(report_path, files, "a file of the output mesh")
-    return Job(
-        mesh_path,
-        mesh,
-        output,
-        scale,
-        method,
-        options,
-        force,
-        report_path,
-        files,
-        sizes,
-        started_at,
-    )
 
 
 @dataclass
@@ -493,11 +400,13 @@ class Downsampled:
         comparison: the rows on Q: the method first, then bicubic and Lanczos, each with its
             ``gain_db`` over bicubic; the outputs (for pictures).
         details: the method's details plus how Q was used.
+        maps: every texture of the asset as it ships (set by :func:`run_job`).
     """
 
     result: MethodResult
     comparison: Comparison
     details: dict[str, Any]
+    maps: list[ShippedMap] = field(default_factory=list)
 
     @property
     def rows(self) -> list[dict[str, Any]]:
@@ -506,7 +415,7 @@ class Downsampled:
 
 def downsample(
     mesh: TexturedMesh,
-    scale: int,
+    scale: int | SizeRule,
     method: str,
     options: MethodOptions,
     renderer: Renderer | None = None,
@@ -515,15 +424,17 @@ def downsample(
     started_at: float | None = None,
     reserve: float = 0.0,
 ) -> Downsampled:
-    """Run ``method`` on ``mesh`` at ``scale`` and score it, bicubic and Lanczos on Q.
+    """Run ``method`` on ``mesh`` at ``scale`` (a whole number or a :class:`SizeRule`) and
+    score it, bicubic and Lanczos on Q.
 
     ``started_at``, ``reserve``: as :func:`compare_mesh` (None: the budget counts from the
     caching of Q).
     """
     methods = [method, *(name for name in REPORT_BASELINES if name != method)]
+    (rule,) = check_rules([scale])
     comparison = compare_mesh(
         mesh,
-        [scale],
+        [rule],
         methods,
         [VALIDATION_DISTANCE],
         options,
@@ -534,52 +445,9 @@ def downsample(
         reserve,
         rows_on="validation",
     )
-    result = comparison.outputs[method, scale]
+    result = comparison.outputs[method, rule.label]
     details = dict(result.details)
     if is_learned(method):
         details["time_budget"] = options.time_budget
         details["steps_limit"] = options.steps
     return Downsampled(result, comparison, details)
-
-
-def export(
-    mesh: TexturedMesh, result: MethodResult, output: Path, force: bool = False
-) -> list[Path]:
-    """Write ``mesh`` with the result's textures (and UVs) in the format ``output`` names.
-
-    Other maps, factors and material properties are carried over untouched.
-    """
-    out_mesh, uvs = mesh, result.uvs
-    for index, texture in enumerate(result.textures):
-        if texture is not None:
-            out_mesh = out_mesh.with_texture(index, texture, uvs=uvs)
-            uvs = None  # the UVs are the mesh's, set once
-    return save_mesh(out_mesh, output, overwrite=force)
-
-
-def run_job(
-    job: Job,
-    renderer: Renderer | None = None,
-    observer: JobObserver | None = None,
-    controller: Controller | None = None,
-) -> tuple[Downsampled, list[Path]]:
-    """Run a prepared job end to end: downsample, score, write the mesh; returns what was done
-    and the files written (the report is written by the caller, which knows the seconds).
-
-    The time budget is the wall clock of the whole job, from :func:`prepare` to the export
-    (:data:`EXPORT_RESERVE` seconds are kept for writing the files).
-    """
-    done = downsample(
-        job.mesh,
-        job.scale,
-        job.method,
-        job.options,
-        renderer,
-        observer,
-        controller,
-        job.started_at,
-        EXPORT_RESERVE,
-    )
-    (observer or JobObserver()).stage("writing", 0, 1)
-    written = export(job.mesh, done.result, job.output, job.force)
-    return done, written

@@ -19,7 +19,7 @@ comes back ``(h, w, C)`` uint8. glTF slots fall in three classes (:func:`texture
 
 One implementation of each idea: the sRGB transfer is :mod:`geoscaler.texture`'s (the decode
 as a 256-entry table made with it), the Lanczos and BOX kernels are Pillow's, run through
-:func:`geoscaler.filters._pillow_resize` (8-bit planes for data, float32 planes otherwise).
+:func:`geoscaler.filters.resize_channels` (8-bit planes for data, float32 planes otherwise).
 
 Memory: no float copy of a whole map is made. Float planes are decoded ``_BAND`` rows at a
 time and filtered along rows into float32 ``(H, w)`` intermediates, then along columns
@@ -42,8 +42,9 @@ import torch
 from PIL import Image
 
 from geoscaler.errors import GeoscalerError
-from geoscaler.filters import _pillow_resize
+from geoscaler.filters import resize_channels
 from geoscaler.mesh import check_texture
+from geoscaler.sizes import COLOR, DATA, NORMAL, TEXTURE_CLASSES
 from geoscaler.texture import linear_to_srgb, srgb_to_linear
 
 __all__ = [
@@ -54,12 +55,11 @@ __all__ = [
     "TEXTURE_CLASSES",
     "alpha_coverage",
     "normal_shortening",
+    "resize_alpha",
     "resize_map",
     "texture_class",
 ]
 
-COLOR, NORMAL, DATA = "color", "normal", "data"
-TEXTURE_CLASSES = (COLOR, NORMAL, DATA)
 
 METHOD_NAMES: dict[str, str] = {
     COLOR: "Lanczos in linear light",
@@ -78,6 +78,11 @@ _SLOTS = {
     # would call data: diffuse (RGB + linear alpha) and specular (RGB) + glossiness (alpha).
     "KHR_materials_pbrSpecularGlossiness/diffuseTexture": COLOR,
     "KHR_materials_pbrSpecularGlossiness/specularGlossinessTexture": COLOR,
+    # MTL maps glTF has no slot for (``mtl:KEYWORD``): ambient, specular and reflection colours;
+    # the others (map_Ns, map_d, bump, disp, ...) are data by the rule.
+    "mtl:map_Ka": COLOR,
+    "mtl:map_Ks": COLOR,
+    "mtl:refl": COLOR,
 }
 """Slots whose class is not given by the suffix rule of :func:`texture_class`."""
 
@@ -102,9 +107,10 @@ def texture_class(slot: str) -> str:
     "NormalTexture" -> NORMAL, "ColorTexture" (sheenColorTexture, specularColorTexture, ...)
     -> COLOR, everything else -> DATA.
 
-    One exception to the suffix rule: the two maps of ``KHR_materials_pbrSpecularGlossiness``
-    (``diffuseTexture``, ``specularGlossinessTexture``) hold sRGB colour (plus linear alpha),
-    so they are COLOR.
+    MTL maps glTF has no slot for are ``"mtl:KEYWORD"``: ``map_Ka``, ``map_Ks`` and ``refl``
+    are COLOR, the rest DATA. One exception to the suffix rule: the two maps of
+    ``KHR_materials_pbrSpecularGlossiness`` (``diffuseTexture``, ``specularGlossinessTexture``)
+    hold sRGB colour (plus linear alpha), so they are COLOR.
     """
     if slot in _SLOTS:
         return _SLOTS[slot]
@@ -153,7 +159,7 @@ def resize_map(
         return _resize_color(pixels, size, alpha_cutoff)
     if kind == NORMAL:
         return _resize_normal(pixels, size)
-    return _pillow_resize(pixels, size, Image.Resampling.LANCZOS)
+    return resize_channels(pixels, size, Image.Resampling.LANCZOS)
 
 
 def normal_shortening(pixels: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -256,9 +262,9 @@ def _separable(
 
 
 def _pillow_plane(plane: np.ndarray, size: tuple[int, int], resample: Image.Resampling):
-    """``(H, W)`` float32 -> ``size`` float32 through :func:`geoscaler.filters._pillow_resize`
+    """``(H, W)`` float32 -> ``size`` float32 through :func:`geoscaler.filters.resize_channels`
     (a Pillow 'F' image; a side left unchanged is not filtered)."""
-    return _pillow_resize(plane[..., None], size, resample)[..., 0]
+    return resize_channels(plane[..., None], size, resample)[..., 0]
 
 
 def _decoded_bands(channel: np.ndarray, table: np.ndarray) -> Iterator[tuple[np.ndarray]]:
@@ -294,11 +300,13 @@ def _resize_color(
         encoded = linear_to_srgb(torch.from_numpy(linear)).numpy()
         result[..., c] = _to_uint8(encoded)
     if colours < channels:
-        result[..., -1] = _resize_alpha(pixels[..., -1], size, alpha_cutoff)
+        result[..., -1] = resize_alpha(pixels[..., -1], size, alpha_cutoff)
     return result
 
 
-def _resize_alpha(alpha: np.ndarray, size: tuple[int, int], alpha_cutoff: float | None):
+def resize_alpha(
+    alpha: np.ndarray, size: tuple[int, int], alpha_cutoff: float | None
+) -> np.ndarray:
     """``(H, W)`` uint8 alpha -> ``(h, w)`` uint8: Lanczos on ``alpha / 255`` in float32,
     clipped to [0, 1], then (with a cutoff) scaled to keep the coverage, then rounded."""
     bands = _decoded_bands(alpha, _UNIT)
@@ -358,7 +366,7 @@ def _resize_normal(pixels: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     encoded = _to_uint8((mean / length + 1.0) * 0.5)
     if pixels.shape[2] == 3:
         return encoded
-    extra = _pillow_resize(pixels[..., 3:], size, Image.Resampling.LANCZOS)
+    extra = resize_channels(pixels[..., 3:], size, Image.Resampling.LANCZOS)
     return np.concatenate([encoded, extra], axis=-1)
 
 

@@ -15,14 +15,17 @@ import numpy as np
 import torch
 
 from geoscaler.cameras import fibonacci_directions, validation_cameras
+from geoscaler.downsampling import Job
 from geoscaler.figures import comparison_sheet
 from geoscaler.filters import reference_textures
-from geoscaler.job import Comparison, Downsampled, Job
+from geoscaler.job import Comparison, Downsampled
 from geoscaler.mesh import TexturedMesh
 from geoscaler.metrics import evaluate
 from geoscaler.protocol import PROTOCOL, VALIDATION_DISTANCE
 from geoscaler.render import Renderer, image_to_uint8
 from geoscaler.rows import texture_facts
+from geoscaler.shipping import ShippedMap
+from geoscaler.sizes import TEXTURE_CLASSES
 from geoscaler.views import ViewSet
 
 
@@ -156,8 +159,12 @@ def comparison_picture(
     )
 
 
-def report_document(job: Job, done: Downsampled, seconds: float) -> dict[str, Any]:
-    """The JSON report: protocol, files, settings, result rows and the method's details."""
+def report_document(
+    job: Job, done: Downsampled, seconds: float, written: Sequence[Path] = ()
+) -> dict[str, Any]:
+    """The JSON report: protocol, files, settings, result rows, the method's details, and
+    every texture's size, memory and bytes before and after (``written``: the output files,
+    for the total on disk)."""
     size, _ = texture_facts(done.result.textures)
     return json_safe(
         {
@@ -165,14 +172,77 @@ def report_document(job: Job, done: Downsampled, seconds: float) -> dict[str, An
             "mesh": str(job.mesh_path),
             "output": str(job.output),
             "method": job.method,
-            "scale": job.scale,
+            "scale": job.plan.color.label,
+            "sizes": {kind: job.plan.rule(kind).label for kind in TEXTURE_CLASSES},
             "texture_size": size,
             "device": describe_device(done.comparison.device),
             "seconds": round(seconds, 3),
             "results": done.rows,
             "details": done.details,
+            "maps": [map_facts(shipped) for shipped in done.maps],
+            "totals": asset_totals(job.mesh.source_files, written, done.maps),
         }
     )
+
+
+def map_facts(shipped: ShippedMap) -> dict[str, Any]:
+    """One texture in the report: where it is shown, how it was made, before and after."""
+    return {
+        "slots": shipped.slots,
+        "class": shipped.kind,
+        "method": shipped.method,
+        "size_before": list(shipped.size_before),
+        "size_after": list(shipped.size_after),
+        "memory_before": shipped.memory_before,
+        "memory_after": shipped.memory_after,
+        "bytes_before": shipped.bytes_before,
+        "bytes_after": shipped.bytes_after,
+    }
+
+
+def asset_totals(
+    inputs: Sequence[Path], outputs: Sequence[Path], maps: Sequence[ShippedMap]
+) -> dict[str, int]:
+    """Texture memory (4 bytes a texel, no mips) and bytes on disk of the whole asset, before
+    and after (the files read, the files written)."""
+
+    def on_disk(paths: Sequence[Path]) -> int:
+        return sum(Path(p).stat().st_size for p in dict.fromkeys(paths) if Path(p).is_file())
+
+    return {
+        "memory_before": sum(m.memory_before for m in maps),
+        "memory_after": sum(m.memory_after for m in maps),
+        "bytes_before": on_disk(inputs),
+        "bytes_after": on_disk(outputs),
+    }
+
+
+def _maps_lines(document: dict[str, Any]) -> list[str]:
+    """One line per texture and a total: class, method, size, memory and bytes."""
+    lines = []
+    for facts in document.get("maps", []):
+        (h0, w0), (h1, w1) = facts["size_before"], facts["size_after"]
+        lines.append(
+            f"  {', '.join(facts['slots'])}: {facts['class']}, {facts['method']}; "
+            f"{w0} x {h0} -> {w1} x {h1}; memory {_mb(facts['memory_before'])} -> "
+            f"{_mb(facts['memory_after'])}; file {_mb(facts['bytes_before'])} -> "
+            f"{_mb(facts['bytes_after'])}"
+        )
+    totals = document.get("totals")
+    if totals and lines:
+        memory = totals["memory_after"] / max(totals["memory_before"], 1)
+        disk = totals["bytes_after"] / max(totals["bytes_before"], 1)
+        lines.insert(0, "textures:")
+        lines.append(
+            f"  total: texture memory {_mb(totals['memory_before'])} -> "
+            f"{_mb(totals['memory_after'])} ({memory:.1%}); on disk "
+            f"{_mb(totals['bytes_before'])} -> {_mb(totals['bytes_after'])} ({disk:.1%})"
+        )
+    return lines
+
+
+def _mb(count: int) -> str:
+    return f"{count / 1e6:.2f} MB" if count >= 100_000 else f"{count / 1e3:.1f} kB"
 
 
 def _validation_lines(method: str, details: dict[str, Any]) -> list[str]:
@@ -183,11 +253,11 @@ def _validation_lines(method: str, details: dict[str, Any]) -> list[str]:
         return []
     sets = list(scores)
     views = ", ".join(f"{name} {counts.get(name, 0)}" for name in sets)
-    own = " / ".join(f"{scores[name]:.2f}" for name in sets)
+    own = " / ".join(_decibels(scores[name]) for name in sets)
     lines = [f"validated on {views} views; PSNR-fg ({' / '.join(sets)}): {method} {own}"]
     if baselines:
-        best = {name: max(b[name] for b in baselines.values()) for name in sets}
-        lines[0] += ", best filter " + " / ".join(f"{best[name]:.2f}" for name in sets)
+        best = [[b[name] for b in baselines.values() if b[name] is not None] for name in sets]
+        lines[0] += ", best filter " + " / ".join(_decibels(max(b, default=None)) for b in best)
     shipped = details.get("shipped", method)
     if shipped != method:
         lines.append(
@@ -196,6 +266,11 @@ def _validation_lines(method: str, details: dict[str, Any]) -> list[str]:
             f"the output is {shipped}'s texture; give the method more steps or time"
         )
     return lines
+
+
+def _decibels(value: float | None) -> str:
+    """A PSNR for the report; None (a set whose views saw none of the mesh): n/a."""
+    return "n/a" if value is None else f"{value:.2f}"
 
 
 def format_report(document: dict[str, Any]) -> str:
@@ -221,4 +296,5 @@ def format_report(document: dict[str, Any]) -> str:
     else:
         lines.append(f"{document['seconds']:.1f} s for the whole job")
     lines.extend(_validation_lines(document["method"], details))
+    lines.extend(_maps_lines(document))
     return "\n".join(lines)

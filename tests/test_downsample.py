@@ -15,13 +15,14 @@ import pytest
 from PIL import Image
 
 import geoscaler.cli
-import geoscaler.job
-from geoscaler.cli import demo
+import geoscaler.downsampling
+import geoscaler.runner
 from geoscaler.console import DownsampleProgress
 from geoscaler.filters import lanczos
 from geoscaler.io import load_mesh, paths, save_mesh
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
+from geoscaler.runner import demo
 
 QUICK_VIEWS = (0, 31)
 QUICK_EVALUATION = Evaluation.quick(QUICK_VIEWS)
@@ -64,15 +65,15 @@ def direct_run(glb, tmp_path_factory):
     out_dir = tmp_path_factory.mktemp("out")
     before = folder_bytes(glb.parent)
     produced = {}
-    real_export = geoscaler.job.export
+    real_export = geoscaler.downsampling.export
 
-    def spy(mesh, result, output, force=False):
+    def spy(mesh, result, output, *args, **kwargs):
         produced["textures"] = [None if t is None else t.copy() for t in result.textures]
         produced["uvs"] = result.uvs
-        return real_export(mesh, result, output, force)
+        return real_export(mesh, result, output, *args, **kwargs)
 
     with pytest.MonkeyPatch.context() as patch:  # a spy: what the job hands the writer
-        patch.setattr(geoscaler.job, "export", spy)
+        patch.setattr(geoscaler.downsampling, "export", spy)
         argv = ["downsample", str(glb), "--scale", "4", "-o", str(out_dir / "small.glb")]
         argv += ["--steps", "2", "--device", "cpu", "--report", str(out_dir / "report.json")]
         status = main(argv)
@@ -157,7 +158,7 @@ def no_work(monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("heavy work started before the arguments were checked")
 
-    monkeypatch.setattr(geoscaler.cli, "downsample_and_report", refuse)
+    monkeypatch.setattr(geoscaler.runner, "downsample_and_report", refuse)
 
 
 @pytest.mark.parametrize(

@@ -426,7 +426,7 @@ def path_cases() -> list[Case]:
              downsample("mesh.obj", "{out}/s.glb", "--report", "/sys/r.json"),
              "is a system folder"),
         Case("downsample-side-files-too-long", obj(),
-             downsample("mesh.obj", f"{{out}}/{'b' * 245}.gltf"), "too long for the file system"),
+             downsample("mesh.obj", f"{{out}}/{'b' * 248}.gltf"), "too long for the file system"),
     ]  # fmt: skip
 
 
@@ -545,6 +545,7 @@ def test_a_downsample_whose_report_cannot_be_written_leaves_no_output(
 ):
     """The report is written after the mesh: when writing it fails, the mesh goes too."""
     import geoscaler.io
+    import geoscaler.runner
 
     folder, out = tmp_path / "in", tmp_path / "out"
     folder.mkdir()
@@ -559,7 +560,7 @@ def test_a_downsample_whose_report_cannot_be_written_leaves_no_output(
             raise geoscaler.io.atomic.GeoscalerError(f"{path}: writing it failed (disk full)")
         return real(path, write)
 
-    monkeypatch.setattr(geoscaler.io, "write_atomically", full_disk)
+    monkeypatch.setattr(geoscaler.runner, "write_atomically", full_disk)
     argv = downsample("mesh.obj", "{out}/s.glb", "--report", "{out}/r.json")
     argv = [a.replace("{in}", str(folder)).replace("{out}", str(out)) for a in argv]
     assert run(argv) == 2

@@ -162,9 +162,11 @@ IMAGE_FORMATS = {"png": "image/png", "jpeg": "image/jpeg", "webp": "image/webp"}
 """The formats GeoScaler writes (``image_format`` values) and their MIME types."""
 FILE_SUFFIXES = {"image/png": ".png", "image/jpeg": ".jpg", "image/webp": ".webp"}
 """The file-name suffix of each written MIME type."""
-PNG_OPTIMIZE = True
-"""Pillow's ``optimize`` for PNG: about 3% smaller files for 4 to 7 times the encoding time
-(2-core machine: a 2048 x 2048 RGB scan texture 0.5 s -> 2.5 s, 4096 x 4096 1.6 s -> 12 s)."""
+PNG_OPTIMIZE_MAX_TEXELS = 1024 * 1024
+"""PNGs of up to this many texels are encoded with Pillow's ``optimize``: about 3% smaller
+files for 4 to 7 times the encoding time (2-core machine: a 2048 x 2048 RGB scan texture
+0.5 s -> 2.5 s, 4096 x 4096 1.6 s -> 12 s), which larger images would take from the job's
+time budget."""
 JPEG_QUALITY = 90
 """Pillow quality of every JPEG GeoScaler encodes. Chroma subsampling: a JPEG source's own
 (4:2:0 for Poly Haven's maps), 4:2:0 where the source was not a JPEG."""
@@ -220,9 +222,9 @@ def encoded_image(
 
     ``source`` is where the texture came from (None: made in code); ``image_format`` is
     ``"png"``, ``"jpeg"``, ``"webp"`` or None (each image in its source's format). The rules
-    are :func:`is_verbatim` and :func:`written_mime`; the settings :data:`JPEG_QUALITY`
-    and :data:`WEBP_QUALITY`, :data:`PNG_OPTIMIZE`. Grey pixels (equal RGB) are written as
-    grey images. Results are memoised per ``(id(pixels), type, source)`` while ``pixels``
+    are :func:`is_verbatim` and :func:`written_mime`; the settings :data:`JPEG_QUALITY`,
+    :data:`WEBP_QUALITY` and :data:`PNG_OPTIMIZE_MAX_TEXELS`. Grey pixels (equal RGB) are
+    written as grey images. Results are memoised per ``(id(pixels), type, source)`` while ``pixels``
     lives and its content is unchanged (a checksum is compared), so asking again after a save
     returns the same bytes without encoding twice.
     """
@@ -250,7 +252,7 @@ def _encode(pixels: np.ndarray, source: SourceImage | None, mime: str) -> bytes:
     )
     options: dict = {}
     if mime == "image/png":
-        options = {"optimize": PNG_OPTIMIZE}
+        options = {"optimize": pixels.shape[0] * pixels.shape[1] <= PNG_OPTIMIZE_MAX_TEXELS}
     elif mime == "image/jpeg":
         options = {"quality": JPEG_QUALITY, "subsampling": _jpeg_sampling(source), "optimize": True}
     else:

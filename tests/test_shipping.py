@@ -1,0 +1,113 @@
+"""The asset as it ships: every map at its class's size, shared images resized once and kept
+shared, maps the rule does not shrink shipped as they came, the learned method's shared base
+colour one texture."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from geoscaler.maps import METHOD_NAMES
+from geoscaler.mesh import Material, SourceImage, TexturedMesh, compute_vertex_normals, weld_points
+from geoscaler.methods import MethodOptions, RunContext, run_method
+from geoscaler.protocol import Evaluation
+from geoscaler.render import Renderer
+from geoscaler.shipping import ship_asset
+from geoscaler.sizes import SizePlan, SizeRule, size_plan
+
+RNG = np.random.default_rng(7)
+
+
+def _image(height: int, width: int, channels: int = 3) -> np.ndarray:
+    pixels = RNG.integers(0, 256, (height, width, channels), dtype=np.uint8)
+    pixels.flags.writeable = False
+    return pixels
+
+
+def _source(pixels: np.ndarray, name: str) -> SourceImage:
+    return SourceImage(pixels, "image/png", b"x" * 100, name)
+
+
+def shared_pbr_mesh() -> TexturedMesh:
+    """Two quads side by side, two materials showing one base-colour image (each on its own
+    half of it) and one normal map; the first also has a metallic-roughness map."""
+    base, normal, rough = _image(64, 64), _image(32, 32), _image(64, 64)
+    positions = np.array(
+        [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [2, 1, 0]], dtype=np.float32
+    )
+    uvs = np.array([[0, 0], [0.5, 0], [0.5, 1], [0, 1], [1, 0], [1, 1]], dtype=np.float32)
+    faces = np.array([[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2]], dtype=np.int64)
+    sources = {
+        "baseColorTexture": _source(base, "base"),
+        "normalTexture": _source(normal, "normal"),
+    }
+    first = Material(
+        "left",
+        base,
+        maps={"normalTexture": normal, "metallicRoughnessTexture": rough},
+        sources={**sources, "metallicRoughnessTexture": _source(rough, "rough")},
+    )
+    second = Material("right", base, maps={"normalTexture": normal}, sources=dict(sources))
+    points = weld_points(positions)
+    return TexturedMesh(
+        positions=positions,
+        faces=faces,
+        uvs=uvs,
+        normals=compute_vertex_normals(positions, faces, points),
+        vertex_to_point=points,
+        face_material=np.array([0, 0, 1, 1]),
+        materials=[first, second],
+    )
+
+
+def test_every_map_ships_at_its_class_size_and_shared_maps_stay_shared():
+    mesh = shared_pbr_mesh()
+    base = mesh.materials[0].base_color_texture
+    made = np.zeros((16, 16, 3), np.uint8)
+    out, shipped = ship_asset(mesh, size_plan({"all": 4, "normal": 2}, {}), [made, made], "direct")
+    left, right = out.materials
+    assert left.base_color_texture is made and right.base_color_texture is made
+    assert left.maps["normalTexture"] is right.maps["normalTexture"]
+    assert left.maps["normalTexture"].shape == (16, 16, 3)
+    assert left.maps["metallicRoughnessTexture"].shape == (16, 16, 3)
+    assert [(m.kind, m.method) for m in shipped] == [
+        ("color", "direct"),
+        ("normal", METHOD_NAMES["normal"]),
+        ("data", METHOD_NAMES["data"]),
+    ]
+    assert shipped[0].slots == ["left/baseColorTexture", "right/baseColorTexture"]
+    assert shipped[1].slots == ["left/normalTexture", "right/normalTexture"]
+    assert [m.memory_before / m.memory_after for m in shipped] == [16, 4, 16]
+    assert mesh.materials[0].base_color_texture is base  # the input is left as it was
+
+
+def test_a_map_its_rule_does_not_shrink_ships_as_it_came():
+    mesh = shared_pbr_mesh()
+    normal = mesh.materials[0].maps["normalTexture"]
+    keep_normals = SizePlan(SizeRule(scale=4), SizeRule(max_size=4096), SizeRule(scale=4))
+    made = np.zeros((16, 16, 3), np.uint8)
+    out, shipped = ship_asset(mesh, keep_normals, [made, made], "lanczos")
+    assert out.materials[1].maps["normalTexture"] is normal
+    assert shipped[1].method == "kept" and shipped[1].size_after == (32, 32)
+
+
+def test_direct_optimises_one_texture_for_materials_that_share_an_image():
+    mesh = shared_pbr_mesh()
+    evaluation = Evaluation(image_size=64, views=(0, 7), reference_max_size=None)
+    renderer = Renderer(mesh, "cpu", evaluation)
+    options = MethodOptions(device="cpu", steps=2, settings={"optimize": {"pool_views": 2}})
+    result = run_method("direct", mesh, 4, options, RunContext(renderer))
+    left, right = result.textures
+    assert left.shape == (16, 16, 3)
+    np.testing.assert_array_equal(left, right)
+
+
+@pytest.mark.parametrize("scale", [2, 4])
+def test_texture_memory_falls_by_the_scale_squared(scale):
+    mesh = shared_pbr_mesh()
+    size = 64 // scale
+    made = np.zeros((size, size, 3), np.uint8)
+    _, shipped = ship_asset(mesh, size_plan({"all": scale}, {}), [made, made], "box")
+    before = sum(m.memory_before for m in shipped)
+    after = sum(m.memory_after for m in shipped)
+    assert before / after == scale**2
