@@ -131,6 +131,13 @@ class OptimisePanel:
             if changed:
                 read_budget(text, settings)
             imgui.set_item_tooltip("empty it for no time limit (Stop ends the run)")
+            renderers = ["exact", "soft"]
+            _, index = imgui.combo("renderer", renderers.index(settings.renderer), renderers)
+            settings.renderer = renderers[index]
+            imgui.set_item_tooltip(
+                "what the method trains through: exact (as a GPU shows it) or soft (the "
+                "paper's soft rasteriser); validation is always exact"
+            )
             imgui.text_disabled(run_summary(settings))
             evaluation = settings.evaluation
             count = len(evaluation.view_indices)

@@ -78,6 +78,8 @@ class TrainingSettings:
             CLI's, :data:`geoscaler.arguments.DEFAULT_TIME_BUDGET`; None: no limit).
         evaluation: image size and views of the torch renders (protocol 1; tests use less).
         optimize: ``OptimizeConfig`` overrides for learned methods (tests use a small pool).
+        renderer: what learned methods train through: ``"exact"`` or ``"soft"`` (the paper's
+            soft rasteriser); validation is exact either way.
     """
 
     method: str = "direct"
@@ -86,6 +88,7 @@ class TrainingSettings:
     time_budget: float | None = DEFAULT_TIME_BUDGET
     evaluation: Evaluation = PROTOCOL_EVALUATION
     optimize: dict[str, Any] = field(default_factory=dict)
+    renderer: str = "exact"
 
     def step_limit(self) -> int | None:
         """The steps the run will stop at (unless its time budget ends it first); None when
@@ -141,7 +144,10 @@ class Training:
         checked_output_sizes(mesh, check_scale(settings.scale))
         self.mesh = mesh
         self.settings = settings
-        extra = {"optimize": dict(settings.optimize)} if settings.optimize else {}
+        loop = dict(settings.optimize)
+        if settings.renderer != "exact":
+            loop["training_renderer"] = settings.renderer
+        extra = {"optimize": loop} if loop else {}
         # No default budget here: None is the user's "no limit". A filter has no budget (the
         # field is not shown for it), as the CLI gives it none unless asked.
         budget = settings.time_budget if is_learned(settings.method) else None

@@ -189,11 +189,15 @@ def network_settings(preset: str | None = None, vgg19: str | Path | None = None)
 
 def method_settings(args: Any) -> dict:
     """The methods' own settings from parsed arguments: the network's ``--preset`` and
-    ``--vgg19``, plus ``args.optimize``, loop overrides that a caller of
-    :func:`geoscaler.cli.main` injected (None from the command line)."""
+    ``--vgg19``, ``--renderer`` (what learned methods train through), plus ``args.optimize``,
+    loop overrides that a caller of :func:`geoscaler.cli.main` injected (None from the
+    command line)."""
     settings = network_settings(args.preset, args.vgg19)
-    if args.optimize:
-        settings["optimize"] = dict(args.optimize)
+    loop = dict(args.optimize or {})
+    if getattr(args, "renderer", "exact") != "exact":
+        loop["training_renderer"] = args.renderer
+    if loop:
+        settings["optimize"] = loop
     return settings
 
 

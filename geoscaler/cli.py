@@ -265,7 +265,15 @@ def cmd_batch(args: argparse.Namespace) -> int:
 
 
 def _add_network_arguments(parser: argparse.ArgumentParser, variants: str) -> None:
-    """Flags of the GeoScaler network: variant(s), preset, VGG-19 weights."""
+    """Flags of the learned methods: what they train through; the GeoScaler network's
+    variant(s), preset, VGG-19 weights."""
+    parser.add_argument(
+        "--renderer",
+        choices=["exact", "soft"],
+        default="exact",
+        help="what learned methods train through: exact (default: the renderer a GPU is) or "
+        "soft (the paper's soft rasteriser, geoscaler.soft); validation and scores are exact",
+    )
     parser.add_argument("--variant", help=variants)
     parser.add_argument(
         "--preset",

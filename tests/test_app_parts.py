@@ -130,7 +130,7 @@ def test_uv_pictures_draw_texture_outlines_and_warp(app_modules, small_demo):
     surface.release()
 
 
-def finished_run(mesh, method: str, steps: int, validate_every: int):
+def finished_run(mesh, method: str, steps: int, validate_every: int, renderer: str = "exact"):
     """The state of a small run of ``method`` on ``mesh`` (4x, 64-pixel views), run to its end."""
     training = import_app_module("training")
     settings = training.TrainingSettings(
@@ -140,6 +140,7 @@ def finished_run(mesh, method: str, steps: int, validate_every: int):
         time_budget=60.0,
         evaluation=ONE_SMALL_VIEW,
         optimize={"pool_views": 2, "validate_every": validate_every},
+        renderer=renderer,
     )
     run = training.Training(mesh, settings)
     run.start()
@@ -159,6 +160,12 @@ def test_training_runs_off_thread_and_reports(small_demo):
     assert state.textures[0].shape == (32, 32, 3)
     assert [level.shape[:2] for level in state.chains[0]][:3] == [(32, 32), (16, 16), (8, 8)]
     assert {row["method"] for row in state.result.rows} == {"direct", "bicubic", "lanczos"}
+
+
+def test_the_app_trains_through_the_soft_renderer_when_chosen(small_demo):
+    state = finished_run(small_demo, "direct", steps=2, validate_every=2, renderer="soft")
+    assert state.phase == "done" and state.step == 2
+    assert state.result.details["training_renderer"] == "soft"
 
 
 def test_training_pauses_resumes_and_stops(small_demo):

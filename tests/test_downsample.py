@@ -293,3 +293,12 @@ def test_demo_builds_the_asset_and_writes_outputs(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "using the demo asset" in printed and "no optimisation step ran" in printed
     assert (tmp_path / "demo" / "geoscaler_demo.glb").read_bytes() == asset
+
+
+def test_renderer_soft_trains_through_the_soft_rasteriser(glb, tmp_path):
+    report = tmp_path / "r.json"
+    argv = ["downsample", str(glb), "-o", str(tmp_path / "s.glb"), "--renderer", "soft"]
+    argv += ["--steps", "1", "--device", "cpu", "--report", str(report)]
+    assert main(argv) == 0
+    details = json.loads(report.read_text())["details"]
+    assert details["training_renderer"] == "soft" and details["steps"] == 1

@@ -78,6 +78,7 @@ def fit(
     uvs = None if result.uvs is None else result.uvs.detach().cpu().numpy().astype("float32")
     facts = {
         "device": str(renderer.device),
+        "training_renderer": config.training_renderer,
         **(details or {}),
         "steps": result.steps,
         "best_step": result.best_step,
