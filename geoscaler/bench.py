@@ -10,9 +10,7 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
-import os
 import shlex
 import sys
 import time
@@ -25,7 +23,7 @@ import numpy as np
 
 from geoscaler.arguments import check_distances, check_method, check_scales, comparison_settings
 from geoscaler.errors import GeoscalerError
-from geoscaler.io import SUPPORTED_SUFFIXES, load_mesh
+from geoscaler.io import SUPPORTED_SUFFIXES, find_assets, load_mesh
 from geoscaler.job import JobObserver, compare_mesh, prepare_out_dir
 from geoscaler.methods import MethodOptions
 from geoscaler.metrics import METRIC_NAMES
@@ -85,34 +83,13 @@ class BenchResult:
     seconds: float = 0.0
 
 
-def _meta_entry(folder: Path) -> str | None:
-    """The ``"entry"`` file named by ``folder/meta.json``, or None (no file, no key, bad JSON)."""
-    meta = folder / "meta.json"
-    if not meta.is_file():
-        return None
-    try:
-        entry = json.loads(meta.read_text(encoding="utf-8")).get("entry")
-    except (OSError, ValueError, AttributeError):
-        return None
-    return entry if isinstance(entry, str) and entry else None
-
-
 def _search_folder(root: Path) -> list[MeshEntry]:
-    """Mesh files under ``root``: meta.json entries where present, else every mesh file."""
-    found = []
-    for folder, subfolders, files in os.walk(root):
-        subfolders[:] = sorted(d for d in subfolders if not d.startswith("."))
-        here = Path(folder)
-        entry = _meta_entry(here)
-        if entry is not None:
-            found.append(MeshEntry(here / entry, here.name))
-            subfolders[:] = []
-            continue
-        for name in sorted(files):
-            if Path(name).suffix.lower() in SUPPORTED_SUFFIXES:
-                path = here / name
-                found.append(MeshEntry(path, path.relative_to(root).as_posix()))
-    return found
+    """Mesh files under ``root`` (:func:`geoscaler.io.find_assets`), named by their folder
+    where a ``meta.json`` names them, else by their path under ``root``."""
+    return [
+        MeshEntry(found.path, found.path.parent.name if found.from_meta else found.relative)
+        for found in find_assets(root)
+    ]
 
 
 def find_meshes(paths: Sequence[str | Path]) -> list[MeshEntry]:

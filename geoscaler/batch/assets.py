@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from geoscaler.io import SUPPORTED_SUFFIXES
+from geoscaler.io import find_assets as find_io_assets
 from geoscaler.report import json_safe
 from geoscaler.sizes import TEXTURE_CLASSES
 
@@ -41,43 +40,16 @@ class Asset:
         return f"{STAGING_PREFIX}{hashlib.sha1(self.name.encode()).hexdigest()[:16]}-"
 
 
-def _meta_entry(folder: Path) -> str | None:
-    """The ``"entry"`` that ``folder/meta.json`` names, or None (no file, no key, bad JSON)."""
-    try:
-        entry = json.loads((folder / "meta.json").read_text(encoding="utf-8")).get("entry")
-    except (OSError, ValueError, AttributeError):
-        return None
-    return entry if isinstance(entry, str) and entry else None
-
-
 def find_assets(in_dir: Path, skip: Sequence[Path] = ()) -> list[tuple[str, Path, str | None]]:
-    """``(name, path, problem)`` of every asset under ``in_dir``, in sorted order.
-
-    A folder whose ``meta.json`` names an ``"entry"`` is one asset, that file (its subfolders
-    belong to it); elsewhere every ``.glb``, ``.gltf`` and ``.obj`` file is one (their side
-    files, .bin, .mtl and images, are not assets). Hidden folders and files and the folders
-    in ``skip`` (OUT_DIR inside IN_DIR) are not searched.
-    """
-    root, skipped = in_dir.resolve(), {Path(p).resolve() for p in skip}
-    found = []
-    for folder, subfolders, files in os.walk(in_dir):
-        here = Path(folder)
-        subfolders[:] = sorted(
-            d for d in subfolders if not d.startswith(".") and (here / d).resolve() not in skipped
-        )
-        entry = _meta_entry(here)
-        if entry is not None:
-            subfolders[:] = []
-            path = here / entry
-            name = (here.relative_to(in_dir) / entry).as_posix()
-            inside = path.resolve().is_relative_to(root)
-            problem = None if inside else "its folder's meta.json names an entry outside IN_DIR"
-            found.append((name, path, problem))
-            continue
-        for file in sorted(files):
-            if not file.startswith(".") and Path(file).suffix.lower() in SUPPORTED_SUFFIXES:
-                found.append(((here / file).relative_to(in_dir).as_posix(), here / file, None))
-    return found
+    """``(name, path, problem)`` of every asset under ``in_dir`` (:func:`geoscaler.io.find_assets`:
+    a folder's ``meta.json`` entry, else every mesh file; hidden folders and ``skip``, OUT_DIR
+    inside IN_DIR, not searched), in sorted order. An entry outside IN_DIR is a problem."""
+    root = in_dir.resolve()
+    return [
+        (found.relative, found.path, None if found.path.resolve().is_relative_to(root) else
+         "its folder's meta.json names an entry outside IN_DIR")
+        for found in find_io_assets(in_dir, skip)
+    ]  # fmt: skip
 
 
 def plan_assets(in_dir: Path, out_dir: Path, output_format: str | None = None) -> list[Asset]:

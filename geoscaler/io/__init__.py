@@ -13,18 +13,23 @@ The in-memory form is :mod:`geoscaler.mesh`; this package owns the files:
   encoder (:func:`encoded_image`: the input's bytes where a texture is unchanged);
 - :mod:`~geoscaler.io.paths`: path safety, for reading (references stay inside the mesh's
   folder) and writing (:func:`check_outputs`, the one output check; :func:`prepare_folder`);
+- :mod:`~geoscaler.io.discover`: the assets of a folder tree (:func:`find_assets`);
 - :mod:`~geoscaler.io.atomic`: atomic writes (:func:`write_atomically`, :func:`save_png`).
 
 Only the names below are public; the modules' other names are internal to this package.
 """
 
 from .atomic import save_png, write_atomically
+from .discover import FoundAsset, find_assets, meta_entry
 from .images import IMAGE_FORMATS, JPEG_QUALITY, encoded_image, image_to_texture
 from .load import load_mesh
 from .paths import SUPPORTED_SUFFIXES, check_output, check_outputs, prepare_folder
 from .save import image_bytes, output_files, save_mesh
 
 __all__ = [
+    "FoundAsset",
+    "find_assets",
+    "meta_entry",
     "IMAGE_FORMATS",
     "JPEG_QUALITY",
     "SUPPORTED_SUFFIXES",
