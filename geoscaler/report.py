@@ -238,6 +238,11 @@ def _maps_lines(document: dict[str, Any]) -> list[str]:
             f"{_mb(totals['memory_after'])} ({memory:.1%}); on disk "
             f"{_mb(totals['bytes_before'])} -> {_mb(totals['bytes_after'])} ({disk:.1%})"
         )
+        if totals["bytes_after"] > totals["bytes_before"]:
+            lines.append(
+                "note: the output is larger on disk than the input (its images are encoded "
+                "less tightly than the input's); --image-format jpeg or webp makes them smaller"
+            )
     return lines
 
 

@@ -1,0 +1,65 @@
+"""The printed report says, per texture and in total, what was made and what it costs."""
+
+from __future__ import annotations
+
+from geoscaler.report import format_report
+
+ROW = {
+    "method": "direct", "scale": 4, "texture_size": "16x16", "views": 2, "distance": 2.4,
+    "psnr_fg": 30.0, "psnr_full": 31.0, "ssim_full": 0.9, "ssim_fg": 0.8, "gain_db": 1.0,
+    "seconds": 3.0,
+}  # fmt: skip
+
+
+def document(bytes_after: int, scores: dict) -> dict:
+    maps = [
+        {
+            "slots": ["sofa/baseColorTexture", "fringe/baseColorTexture"],
+            "class": "color",
+            "method": "direct",
+            "size_before": [1024, 1024],
+            "size_after": [256, 256],
+            "memory_before": 4194304,
+            "memory_after": 262144,
+            "bytes_before": 500_000,
+            "bytes_after": 40_000,
+        }
+    ]
+    return {
+        "mesh": "sofa.gltf",
+        "output": "small.glb",
+        "protocol": 1,
+        "device": "cpu",
+        "method": "direct",
+        "seconds": 12.0,
+        "results": [ROW],
+        "details": {"validation_views": {"Q": 2, "near": 1, "far": 1}, "validation_scores": scores},
+        "maps": maps,
+        "totals": {
+            "memory_before": 4194304,
+            "memory_after": 262144,
+            "bytes_before": 600_000,
+            "bytes_after": bytes_after,
+        },
+    }
+
+
+def test_each_texture_and_the_totals_are_listed():
+    text = format_report(document(90_000, {"Q": 30.0, "near": 29.0, "far": 28.0}))
+    lines = text.splitlines()
+    assert lines[-3:] == [
+        "textures:",
+        "  sofa/baseColorTexture, fringe/baseColorTexture: color, direct; 1024 x 1024 -> "
+        "256 x 256; memory 4.19 MB -> 0.26 MB; file 0.50 MB -> 40.0 kB",
+        "  total: texture memory 4.19 MB -> 0.26 MB (6.2%); on disk 0.60 MB -> 90.0 kB (15.0%)",
+    ]
+
+
+def test_an_output_larger_than_its_input_is_said():
+    text = format_report(document(700_000, {"Q": 30.0, "near": 29.0, "far": 28.0}))
+    assert "note: the output is larger on disk than the input" in text
+
+
+def test_a_validation_set_that_saw_nothing_reads_n_a():
+    text = format_report(document(90_000, {"Q": 30.0, "near": None, "far": None}))
+    assert "PSNR-fg (Q / near / far): direct 30.00 / n/a / n/a" in text
