@@ -17,13 +17,13 @@ from typing import Any
 
 import numpy as np
 
+from geoscaler.devices import resolve_device
 from geoscaler.errors import GeoscalerError
 from geoscaler.filters import check_scale
 from geoscaler.io import IMAGE_FORMATS
 from geoscaler.methods import MethodOptions, get_method, is_learned, method_names
 from geoscaler.methods.network import check_preset, check_variant
 from geoscaler.protocol import VIEWS
-from geoscaler.render import resolve_device
 from geoscaler.sizes import SizePlan, SizeRule, parse_class_value, size_plan
 
 DEFAULT_TIME_BUDGET = 60.0

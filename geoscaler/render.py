@@ -17,22 +17,12 @@ import numpy as np
 import torch
 
 from geoscaler.cameras import Camera
-from geoscaler.errors import GeoscalerError
+from geoscaler.devices import mesh_tensors, resolve_device
 from geoscaler.filters import reference_textures
 from geoscaler.mesh import TexturedMesh
 from geoscaler.protocol import PROTOCOL_EVALUATION, Evaluation
 from geoscaler.raster import GBuffer, rasterize
 from geoscaler.texture import MipTexture, UVFootprint, linear_to_srgb, texture_to_linear
-
-
-def resolve_device(name: str | torch.device | None = None) -> torch.device:
-    """The torch device for ``name``: ``None``/``"auto"`` means CUDA when torch sees a GPU."""
-    if name is None or name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    device = torch.device(name)
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise GeoscalerError("device cuda: torch sees no CUDA GPU here; use --device cpu or auto")
-    return device
 
 
 class Renderer:
@@ -55,13 +45,9 @@ class Renderer:
         self.image_size = evaluation.image_size
         self.supersample = evaluation.supersample
         self.mesh = mesh
-        to = {"device": self.device}
-        self.positions = torch.from_numpy(mesh.normalized_positions()).to(**to)
-        self.faces = torch.from_numpy(np.asarray(mesh.faces, dtype=np.int64)).to(**to)
-        self.uvs = torch.from_numpy(np.asarray(mesh.uvs, dtype=np.float32)).to(**to)
-        self.face_material = torch.from_numpy(np.asarray(mesh.face_material, np.int64)).to(**to)
-        factors = np.stack([m.base_color_factor[:3] for m in mesh.materials]).astype(np.float32)
-        self.factors = torch.from_numpy(factors).to(**to)
+        tensors = mesh_tensors(mesh, self.device)
+        self.positions, self.faces, self.uvs = tensors.positions, tensors.faces, tensors.uvs
+        self.face_material, self.factors = tensors.face_material, tensors.factors
         self._reference: list[MipTexture | None] | None = None
 
     @property

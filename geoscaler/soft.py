@@ -48,10 +48,10 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-import numpy as np
 import torch
 
 from geoscaler.cameras import Camera
+from geoscaler.devices import mesh_tensors, resolve_device
 from geoscaler.filters import reference_textures
 from geoscaler.mesh import TexturedMesh
 from geoscaler.protocol import PROTOCOL_EVALUATION, Evaluation
@@ -429,7 +429,8 @@ class SoftRenderer:
         evaluation: image size and supersampling.
         settings: sigma, gamma, K, blur radius, depth range.
         reference: returns the reference textures, one per material (default: the protocol's
-            reference maps, :func:`geoscaler.filters.reference_textures`, in linear light).
+            reference maps at the evaluation's ``reference_max_size``,
+            :func:`geoscaler.filters.reference_textures`, in linear light).
         dtype: float type of the fragments.
     """
 
@@ -442,20 +443,14 @@ class SoftRenderer:
         reference: Callable[[], Sequence[Texture]] | None = None,
         dtype: torch.dtype = torch.float32,
     ):
-        if device is None or device == "auto":
-            device = "cuda" if torch.cuda.is_available() else "cpu"
-        self.device = torch.device(device)
+        self.device = resolve_device(device)
         self.evaluation, self.settings, self.dtype = evaluation, settings, dtype
         self.image_size = evaluation.image_size
         self.supersample = settings.supersample or evaluation.supersample
         self.mesh = mesh
-        to = {"device": self.device}
-        self.positions = torch.from_numpy(mesh.normalized_positions()).to(**to)
-        self.faces = torch.from_numpy(np.asarray(mesh.faces, dtype=np.int64)).to(**to)
-        self.uvs = torch.from_numpy(np.asarray(mesh.uvs, dtype=np.float32)).to(**to)
-        self.face_material = torch.from_numpy(np.asarray(mesh.face_material, np.int64)).to(**to)
-        factors = np.stack([m.base_color_factor[:3] for m in mesh.materials]).astype(np.float32)
-        self.factors = torch.from_numpy(factors).to(**to)
+        tensors = mesh_tensors(mesh, self.device)
+        self.positions, self.faces, self.uvs = tensors.positions, tensors.faces, tensors.uvs
+        self.face_material, self.factors = tensors.face_material, tensors.factors
         self._reference_source = reference
         self._reference: list[Texture] | None = None
 
@@ -470,7 +465,7 @@ class SoftRenderer:
             if self._reference_source is not None:
                 self._reference = list(self._reference_source())
             else:
-                maps = reference_textures(self.mesh)
+                maps = reference_textures(self.mesh, self.evaluation.reference_max_size)
                 self._reference = [
                     None if t is None else texture_to_linear(t, self.device) for t in maps
                 ]
