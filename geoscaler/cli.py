@@ -437,11 +437,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     downsample = commands.add_parser(
         "downsample",
-        help="the main job: a texture SCALE times smaller that renders like the original",
-        description="Write MESH with its base-colour textures SCALE times smaller (per side) in "
-        "the format OUT's suffix names, and report protocol-1 metrics on the validation views "
-        "for the result, bicubic and Lanczos. Ctrl-C stops the optimisation and still writes "
-        "the best result so far; a second Ctrl-C aborts.",
+        help="the main job: every texture smaller, the base colour rendering like the original",
+        description="Write MESH with every texture of every material smaller (base colour by "
+        "the method, other maps by what they hold) in the format OUT's suffix names, and "
+        "report protocol-1 metrics on the validation views for the result, bicubic and "
+        "Lanczos, and each texture's size, memory and bytes. Ctrl-C stops the optimisation "
+        "and still writes the best result so far; a second Ctrl-C aborts.",
     )
     downsample.add_argument("mesh", metavar="MESH", help="OBJ, glTF or GLB file (never modified)")
     downsample.add_argument(
