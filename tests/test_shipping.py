@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from geoscaler.errors import GeoscalerError
 from geoscaler.maps import METHOD_NAMES
 from geoscaler.mesh import Material, SourceImage, TexturedMesh, compute_vertex_normals, weld_points
 from geoscaler.methods import MethodOptions, RunContext, run_method
@@ -111,3 +112,10 @@ def test_texture_memory_falls_by_the_scale_squared(scale):
     before = sum(m.memory_before for m in shipped)
     after = sum(m.memory_after for m in shipped)
     assert before / after == scale**2
+
+
+def test_the_network_does_not_warp_uvs_that_other_maps_read():
+    mesh = shared_pbr_mesh()
+    options = MethodOptions(device="cpu", steps=1, settings={"variant": "full"})
+    with pytest.raises(GeoscalerError, match="would no longer line up: use --variant base"):
+        run_method("geoscaler", mesh, 4, options)

@@ -158,6 +158,20 @@ def network_scale(rule: SizeRule) -> int:
     return rule.scale
 
 
+def check_maps_follow(mesh: TexturedMesh, config: NetworkConfig) -> None:
+    """Refuse to warp the UVs of a mesh whose other maps (normal, roughness...) read them: they
+    would no longer line up with the surface."""
+    if not config.uv_warper:
+        return
+    for material in mesh.materials:
+        if material.maps:
+            raise GeoscalerError(
+                f"material {material.name!r} has other maps ({', '.join(material.maps)}) on the "
+                f"UVs that variant {config.variant!r} moves; they would no longer line up: use "
+                "--variant base or gcm (UVs kept), or --method direct"
+            )
+
+
 def network_inputs(
     mesh: TexturedMesh, scale: int, device: torch.device, maps: list[np.ndarray | None]
 ) -> tuple[list[torch.Tensor | None], list[torch.Tensor | None], list[np.ndarray | None]]:
@@ -227,6 +241,7 @@ def geoscaler_network(
     renderer = method_renderer(mesh, options, context)
     torch.manual_seed(options.seed)
     config = replace(preset.network, variant=variant)
+    check_maps_follow(mesh, config)
     model = build_network(mesh, scale, config, renderer.device, renderer.reference_maps())
 
     perceptual, perceptual_note = None, "off in this preset"
