@@ -1,8 +1,9 @@
 """Capture the desktop app showing mesh files, as a user who runs ``geoscaler view MESH`` sees it.
 
 Each mesh is opened in the app (the same window, the imgui test engine drives it under Xvfb)
-and the window is saved as a PNG once it is loaded; with ``--sheet`` the captures are stacked
-into one picture with their file names.
+and the window is saved as a PNG once it is loaded (with ``--steps N``: once Optimise/Start has
+run N steps, through ``--renderer``); with ``--sheet`` the captures are stacked into one
+picture with their file names.
 
     xvfb-run -a -s "-screen 0 1600x1000x24" .venv/bin/python benchmarks/app_capture.py \\
         STOOL.gltf STOOL_x4.glb --out docs/stool --sheet docs/stool.png
@@ -24,18 +25,29 @@ sys.path.insert(0, str(ROOT / "tests"))
 from app_support import import_app_module  # noqa: E402
 
 
-def capture(mesh: Path, picture: Path, seconds: float = 120.0) -> None:
-    """Open ``mesh`` in the app and save the window once it shows the mesh."""
+def capture(
+    mesh: Path, picture: Path, renderer: str = "exact", steps: int = 0, seconds: float = 300.0
+) -> None:
+    """Open ``mesh`` in the app and save the window once it shows the mesh; with ``steps``,
+    first press Optimise/Start (``direct`` trained through ``renderer``) and wait for that
+    many steps."""
     main = import_app_module("main")
+    training = import_app_module("training")
     from imgui_bundle.immapp import testing
 
-    app = main.App(mesh, picture.parent)
+    app = main.App(mesh, picture.parent, training.TrainingSettings(renderer=renderer))
 
-    def session(ctx) -> None:
+    def wait(ctx, condition) -> None:
         end = time.perf_counter() + seconds
-        while app.session is None and time.perf_counter() < end:
+        while not condition() and time.perf_counter() < end:
             time.sleep(0.05)
             ctx.yield_()
+
+    def session(ctx) -> None:
+        wait(ctx, lambda: app.session is not None)
+        if steps:
+            ctx.item_click("//Optimise/Start")
+            wait(ctx, lambda: app.progress is not None and app.progress.step >= steps)
         ctx.yield_(5)
         testing.capture(ctx, str(picture))
 
@@ -61,12 +73,14 @@ def main() -> None:
     parser.add_argument("meshes", type=Path, nargs="+")
     parser.add_argument("--out", type=Path, required=True, help="folder for the captures")
     parser.add_argument("--sheet", type=Path, help="also stack them into this PNG")
+    parser.add_argument("--renderer", default="exact", help="what Optimise trains through")
+    parser.add_argument("--steps", type=int, default=0, help="press Start, wait for N steps")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     pictures = []
     for mesh in args.meshes:
         picture = args.out / f"{mesh.stem}.png"
-        capture(mesh, picture)
+        capture(mesh, picture, args.renderer, args.steps)
         pictures.append(picture)
         print(f"wrote {picture}")
     if args.sheet:
