@@ -5,6 +5,7 @@ from __future__ import annotations
 import base64
 import io
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -169,3 +170,35 @@ def two_material_mesh() -> TexturedMesh:
 def signed_volume(mesh: TexturedMesh) -> float:
     corners = mesh.positions.astype(np.float64)[mesh.faces]
     return float(np.einsum("ij,ij->i", corners[:, 0], np.cross(corners[:, 1], corners[:, 2])).sum())
+
+
+HALF = 1 / math.sqrt(2)  # a quad whose corners sit at distance 1: normalisation is the identity
+
+
+def quad_mesh(texture: np.ndarray, factor=(1.0, 1.0, 1.0, 1.0)) -> TexturedMesh:
+    """A unit quad facing +z, its texture over the whole of it."""
+    positions = np.array([[-HALF, -HALF, 0], [HALF, -HALF, 0], [HALF, HALF, 0], [-HALF, HALF, 0]])
+    return TexturedMesh(
+        positions=positions.astype(np.float32),
+        faces=np.array([[0, 1, 2], [0, 2, 3]]),
+        uvs=np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=np.float32),
+        normals=np.tile([0.0, 0.0, 1.0], (4, 1)).astype(np.float32),
+        vertex_to_point=np.arange(4),
+        face_material=np.zeros(2, dtype=np.int64),
+        materials=[Material("quad", texture, np.asarray(factor, dtype=np.float32))],
+    )
+
+
+def three_material_demo() -> TexturedMesh:
+    """The small demo asset with its faces dealt to a textured, a tinted (same texture) and an
+    untextured material in turn."""
+    from geoscaler.procedural import demo_mesh
+
+    mesh = demo_mesh(subdivisions=4, texture_size=32)
+    mesh.face_material = np.arange(len(mesh.faces)) % 3
+    mesh.materials = [
+        mesh.materials[0],
+        Material("tinted", mesh.materials[0].base_color_texture, np.array([1, 0.5, 0.25, 1])),
+        Material("plain", None, np.array([0.2, 0.4, 0.6, 1.0], dtype=np.float32)),
+    ]
+    return mesh

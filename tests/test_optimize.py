@@ -5,10 +5,10 @@ import threading
 import numpy as np
 import pytest
 import torch
+from mesh_support import three_material_demo
 
 from geoscaler.cameras import validation_cameras
 from geoscaler.filters import lanczos, output_sizes, reference_textures
-from geoscaler.mesh import Material
 from geoscaler.methods import MethodOptions, RunContext, run_method
 from geoscaler.methods.direct import TexelModel
 from geoscaler.optimize import (
@@ -203,13 +203,7 @@ def test_cached_taps_render_exactly_what_the_renderer_renders(scene):
 
 
 def test_cached_taps_handle_several_and_untextured_materials():
-    mesh = demo_mesh(subdivisions=4, texture_size=32)
-    mesh.face_material = np.arange(len(mesh.faces)) % 3
-    mesh.materials = [
-        mesh.materials[0],
-        Material("tinted", mesh.materials[0].base_color_texture, np.array([1, 0.5, 0.25, 1])),
-        Material("plain", None, np.array([0.2, 0.4, 0.6, 1.0], dtype=np.float32)),
-    ]
+    mesh = three_material_demo()
     renderer = Renderer(mesh, "cpu", Evaluation(image_size=32))
     views = ViewSet(renderer, validation_cameras()[:3])
     textures = [torch.rand(8, 8, 3), torch.rand(16, 8, 3), None]

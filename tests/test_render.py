@@ -5,29 +5,15 @@ import math
 import numpy as np
 import pytest
 import torch
+from mesh_support import HALF, quad_mesh
 
 from geoscaler.cameras import Camera, validation_cameras
-from geoscaler.mesh import Material, TexturedMesh
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
 from geoscaler.render import Renderer
 from geoscaler.texture import MipTexture, linear_to_srgb, srgb_to_linear
 
-HALF = 1 / math.sqrt(2)  # a quad whose corners sit at distance 1: normalisation is the identity
 TAN = math.tan(math.radians(22.5))
-
-
-def quad_mesh(texture: np.ndarray, factor=(1.0, 1.0, 1.0, 1.0)) -> TexturedMesh:
-    positions = np.array([[-HALF, -HALF, 0], [HALF, -HALF, 0], [HALF, HALF, 0], [-HALF, HALF, 0]])
-    return TexturedMesh(
-        positions=positions.astype(np.float32),
-        faces=np.array([[0, 1, 2], [0, 2, 3]]),
-        uvs=np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=np.float32),
-        normals=np.tile([0.0, 0.0, 1.0], (4, 1)).astype(np.float32),
-        vertex_to_point=np.arange(4),
-        face_material=np.zeros(2, dtype=np.int64),
-        materials=[Material("quad", texture, np.asarray(factor, dtype=np.float32))],
-    )
 
 
 def checker(size: int, cell: int = 1) -> np.ndarray:

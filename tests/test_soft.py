@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 import torch
+from mesh_support import quad_mesh, three_material_demo
 
 from geoscaler.cameras import Camera
 from geoscaler.filters import lanczos, output_sizes, reference_textures
-from geoscaler.mesh import Material, TexturedMesh
 from geoscaler.methods.direct import TexelModel
 from geoscaler.optimize import OptimizeConfig, optimize
 from geoscaler.procedural import demo_mesh
@@ -136,22 +136,6 @@ def test_a_nearer_opaque_triangle_dominates_a_farther_one_as_gamma_shrinks(sigma
 
 
 # ----------------------------------------------------------------------------- gradients
-
-
-HALF = 1 / math.sqrt(2)  # a quad whose corners sit at distance 1: normalisation is the identity
-
-
-def quad_mesh(texture: np.ndarray) -> TexturedMesh:
-    positions = np.array([[-HALF, -HALF, 0], [HALF, -HALF, 0], [HALF, HALF, 0], [-HALF, HALF, 0]])
-    return TexturedMesh(
-        positions=positions.astype(np.float32),
-        faces=np.array([[0, 1, 2], [0, 2, 3]]),
-        uvs=np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=np.float32),
-        normals=np.tile([0.0, 0.0, 1.0], (4, 1)).astype(np.float32),
-        vertex_to_point=np.arange(4),
-        face_material=np.zeros(2, dtype=np.int64),
-        materials=[Material("quad", texture, np.ones(4, dtype=np.float32))],
-    )
 
 
 def test_gradients_reach_texels_and_vertex_uvs():
@@ -307,13 +291,7 @@ def test_the_default_settings_are_pytorch3ds():
 def test_cached_taps_render_what_the_soft_renderer_renders_with_several_materials():
     """With the mesh's UVs a soft render is fixed taps of texels (summed per pixel and texel),
     for textured, tinted and untextured materials alike."""
-    mesh = demo_mesh(subdivisions=4, texture_size=32)
-    mesh.face_material = np.arange(len(mesh.faces)) % 3
-    mesh.materials = [
-        mesh.materials[0],
-        Material("tinted", mesh.materials[0].base_color_texture, np.array([1, 0.5, 0.25, 1])),
-        Material("plain", None, np.array([0.2, 0.4, 0.6, 1.0], dtype=np.float32)),
-    ]
+    mesh = three_material_demo()
     renderer = Renderer(mesh, "cpu", Evaluation(image_size=32))
     cameras = [Camera((0.6, 0.0, 0.8), 2.4), Camera((0.0, -1.0, 0.0), 1.5)]
     sizes = [(8, 8), (16, 8), None]
