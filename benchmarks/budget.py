@@ -73,11 +73,15 @@ def run_downsample(mesh: Path, scale: int, budget: float, busy: bool, out: Path)
 
 
 def score_runs(mesh_path: Path, scale: int, distances: list[float], runs: list[dict]) -> dict:
-    """PSNR-fg of bicubic and Lanczos per distance; each run gets its own ``psnr`` per distance."""
+    """PSNR-fg of bicubic and Lanczos per distance; each run gets its own ``psnr`` per distance.
+
+    The shipped textures have the sizes the product gives (``scale`` on the full-resolution
+    original); bicubic and Lanczos resize the originals to the same sizes; every image is
+    rendered as protocol 1 does (reference images from the originals reduced to 2048)."""
     mesh = load_mesh(mesh_path)
-    renderer = Renderer(mesh, "cpu")
-    sizes = output_sizes(mesh, scale)
-    originals = reference_textures(mesh)
+    renderer = Renderer(mesh, "cpu")  # protocol 1: reference images from maps reduced to 2048
+    sizes = output_sizes(mesh, scale, None)  # what the product ships: the originals' sizes
+    originals = reference_textures(mesh, None)  # a user's filters resize the originals
     filters = {
         name: [None if t is None else f(t, scale) for t in originals]
         for name, f in (("bicubic", bicubic), ("lanczos", lanczos))
