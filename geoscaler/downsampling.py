@@ -35,7 +35,7 @@ from geoscaler.methods import MethodOptions, MethodResult
 from geoscaler.optimize import Controller
 from geoscaler.protocol import Evaluation
 from geoscaler.render import Renderer
-from geoscaler.shipping import ShippedMap, ship_asset
+from geoscaler.shipping import ShippedMap, ship_asset, with_lossless_base_colors
 from geoscaler.sizes import SizePlan, check_scale, size_plan
 
 OUTPUT_SUFFIXES = (".glb", ".gltf", ".obj")
@@ -141,7 +141,7 @@ def prepare(
             "smaller, so there is nothing for the method to do; give --scale or --max-size "
             "for every class (e.g. --scale 4) or for color (--scale color=2)"
         )
-    planned = output_files(mesh, output, image_format=image_format)
+    planned = output_files(with_lossless_base_colors(mesh), output, image_format=image_format)
     files = check_outputs(planned, force=force, inputs=mesh.source_files)
     if report_path is not None:
         check_output(report_path, force=force, inputs=mesh.source_files)

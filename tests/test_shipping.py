@@ -119,3 +119,20 @@ def test_the_network_does_not_warp_uvs_that_other_maps_read():
     options = MethodOptions(device="cpu", steps=1, settings={"variant": "full"})
     with pytest.raises(GeoscalerError, match="would no longer line up: use --variant base"):
         run_method("geoscaler", mesh, 4, options)
+
+
+def test_the_base_colour_ships_lossless_and_other_maps_keep_their_format():
+    mesh = shared_pbr_mesh()
+    jpeg = {}  # as a JPEG asset comes in: one source per image, shared
+    for material in mesh.materials:
+        material.sources = {
+            slot: jpeg.setdefault(id(s), SourceImage(s.pixels, "image/jpeg", s.data, s.name))
+            for slot, s in material.sources.items()
+        }
+    made = np.zeros((16, 16, 3), np.uint8)
+    out, _ = ship_asset(mesh, size_plan({"all": 4}, {}), [made, made], "direct")
+    left, right = out.materials
+    assert left.sources["baseColorTexture"].mime == "image/png"
+    assert left.sources["baseColorTexture"] is right.sources["baseColorTexture"]
+    assert left.sources["normalTexture"].mime == "image/jpeg"
+    assert left.sources["metallicRoughnessTexture"].mime == "image/jpeg"
