@@ -148,6 +148,7 @@ def job_settings(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def cmd_downsample(args: argparse.Namespace) -> None:
+    from geoscaler.console import command_started_at
     from geoscaler.downsampling import prepare
 
     settings = job_settings(args)
@@ -155,7 +156,7 @@ def cmd_downsample(args: argparse.Namespace) -> None:
         args.mesh,
         args.output,
         report=args.report,
-        started_at=args.started_at,  # the budget is the whole command's wall clock
+        started_at=command_started_at(args.called_at),  # the whole command's wall clock
         **settings,
     )
     from geoscaler.runner import downsample_and_report
@@ -164,6 +165,7 @@ def cmd_downsample(args: argparse.Namespace) -> None:
 
 
 def cmd_demo(args: argparse.Namespace) -> None:
+    from geoscaler.console import command_started_at
     from geoscaler.runner import demo
 
     demo(
@@ -171,7 +173,7 @@ def cmd_demo(args: argparse.Namespace) -> None:
         args.device,
         evaluation=args.evaluation,
         optimize=args.optimize,
-        started_at=args.started_at,
+        started_at=command_started_at(args.called_at),
     )
 
 
@@ -575,15 +577,13 @@ def main(
     command line is the process (``argv`` None: the interpreter's start and the imports
     count), else this call's.
     """
-    from geoscaler.console import process_started_at
-
-    started_at = process_started_at() if argv is None else time.perf_counter()
+    called_at = None if argv is None else time.perf_counter()
     # Idle OpenMP threads sleep instead of spinning: beside another CPU-bound process, spinning
     # threads wait for each other at every parallel region (README, "Busy machines"). Only
     # takes effect before torch is first imported, as it is by the commands below.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     args = build_parser().parse_args(argv)
-    args.evaluation, args.optimize, args.started_at = evaluation, optimize, started_at
+    args.evaluation, args.optimize, args.called_at = evaluation, optimize, called_at
     try:
         status = args.run(args) or 0  # a command returns nothing, or its exit status
     except GeoscalerError as error:

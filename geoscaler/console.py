@@ -31,6 +31,12 @@ def process_started_at() -> float:
         return time.perf_counter()
 
 
+def command_started_at(called_at: float | None) -> float:
+    """The ``time.perf_counter()`` a command's time budget counts from: ``called_at`` (when
+    :func:`geoscaler.cli.main` was called from Python), else this process's start."""
+    return process_started_at() if called_at is None else called_at
+
+
 class DownsampleProgress(JobObserver):
     """One tqdm bar for a downsampling job, named by phase: the views the first step needs,
     the optimisation steps (with the views still being cached alongside), the scoring of the
