@@ -14,11 +14,13 @@ JPEG. Encodings are memoised, so asking for the bytes again after a save costs n
 
 from __future__ import annotations
 
+import contextlib
 import io
 import re
 import warnings
 import weakref
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -72,9 +74,17 @@ def decode_texture(image: Image.Image, label: str, owner: Path) -> np.ndarray:
     ``label`` names the image in the message, ``owner`` the mesh file that references it.
     """
     check_image_size(image, label, owner)
-    try:
+    with decoding_errors(label, owner):
         image.load()
         return image_to_texture(image)
+
+
+@contextlib.contextmanager
+def decoding_errors(label: str, owner: Path) -> Iterator[None]:
+    """Pillow's decoding errors as one ``GeoscalerError``: texture ``label`` of mesh file
+    ``owner`` could not be decoded, and what to do."""
+    try:
+        yield
     except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
         raise GeoscalerError(
             f"{owner}: texture {label} could not be decoded ({exc}). "
@@ -121,13 +131,8 @@ def open_image(path: Path, owner: Path) -> tuple[Image.Image, bytes]:
 def open_embedded(data: bytes, label: str, owner: Path) -> Image.Image:
     """:func:`open_image_bytes` for an image inside a mesh file (glTF), errors as
     ``GeoscalerError`` naming ``owner``; decoded by :func:`source_image`."""
-    try:
+    with decoding_errors(label, owner):
         return open_image_bytes(data)
-    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
-        raise GeoscalerError(
-            f"{owner}: texture {label} could not be decoded ({exc}). "
-            "Re-save it as an 8-bit PNG or JPEG."
-        ) from exc
 
 
 def source_image(
