@@ -35,8 +35,7 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-import torch
-
+from geoscaler.adamw import AdamW
 from geoscaler.bench import MeshEntry, find_meshes
 from geoscaler.cameras import sample_training_cameras, spread_order, view_set_cameras
 from geoscaler.filters import lanczos, output_sizes, reference_textures
@@ -188,7 +187,7 @@ def step_seconds(entry: MeshEntry, args) -> None:
         model = TexelModel(
             [None if t is None else texture_to_linear(t, renderer.device) for t in starts]
         )
-        runs[kind] = train, model, torch.optim.AdamW(model.parameters(), lr=config.lr), caching
+        runs[kind] = train, model, AdamW(model.parameters(), lr=config.lr), caching
     for _ in range(args.step_seconds):
         for kind, (train, model, optimizer, _) in runs.items():
             started = time.perf_counter()

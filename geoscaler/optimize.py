@@ -32,6 +32,7 @@ from typing import Protocol
 
 import torch
 
+from geoscaler.adamw import AdamW
 from geoscaler.cameras import Camera, sample_training_cameras
 from geoscaler.losses import PerceptualTerm, view_loss
 from geoscaler.render import Renderer
@@ -219,7 +220,7 @@ class OptimizeResult:
 def train_step(
     train: ViewCache,
     model: Model,
-    optimizer: torch.optim.Optimizer,
+    optimizer: AdamW,
     views: Sequence[int],
     config: OptimizeConfig,
     lr_factor: Callable[[], float],
@@ -230,14 +231,12 @@ def train_step(
     ``lr_factor()`` is read after the backward pass (so that a budgeted schedule sees the time
     the step took) and scales ``config.lr`` for this step.
     """
-    optimizer.zero_grad(set_to_none=True)
+    optimizer.zero_grad()
     textures, uvs = model.candidate()
     losses = [view_loss(train, i, textures, uvs, config.ssim_weight, perceptual) for i in views]
     loss = torch.stack(losses).mean()
     loss.backward()
-    factor = lr_factor()
-    for group in optimizer.param_groups:
-        group["lr"] = config.lr * factor
+    optimizer.lr = config.lr * lr_factor()
     optimizer.step()
     model.project()
     return loss.item()
@@ -413,9 +412,7 @@ def optimize(
         reachable = [None if m is None else m.to(renderer.device) for m in masks]
     caching = _Caching(train, validation, config, start, emit)
     caching.until_trainable()
-    optimizer = torch.optim.AdamW(
-        list(model.parameters()), lr=config.lr, weight_decay=config.weight_decay
-    )
+    optimizer = AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     generator = torch.Generator().manual_seed(config.seed)
     start_candidate = finished_candidate(model, reachable)
     best = _Best(validation)
