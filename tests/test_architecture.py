@@ -19,11 +19,11 @@ PACKAGES = {"geoscaler": ROOT / "geoscaler", "geoscaler.app": ROOT / "app"}
 LAYERS = [
     ["errors", "protocol"],
     [""],  # the package itself (geoscaler/__init__.py)
-    ["texture", "raster", "metrics", "figures", "sizes", "devices", "adamw"],
+    ["texture", "raster", "metrics", "figures", "sizes", "devices", "adamw", "packing"],
     ["mesh", "cameras"],
     ["filters", "io", "procedural"],
     ["render", "uvmaps", "maps", "soft"],
-    ["views", "nn"],
+    ["views", "nn", "atlas", "bake"],
     ["validation", "losses"],
     ["optimize"],
     ["methods"],

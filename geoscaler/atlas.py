@@ -1,0 +1,490 @@
+"""Re-allocating a texture atlas to the texels the views ask of each chart (issue 17).
+
+With its own UVs a scan's texture spends most of its texels on nothing (UV coverage of 8 to
+50 %) and the rest evenly, whatever the views show of each chart. :func:`repack` finds the
+charts of the mesh's UV layout (:func:`geoscaler.uvmaps.chart_labels`), scales each by the
+screen footprint the training cameras give it per unit of its UV area (the texels a view asks
+of it), and packs the scaled charts into one ``R x R`` atlas with ``xatlas``, as large as one
+atlas still holds them all, with padding enough for the mip levels the far views read.
+
+Every chart is moved by a similarity only: a uniform scale and a translation, plus a rotation
+by a multiple of 90 degrees (or a transpose, a mirror) where the material has no normal map.
+So each vertex, which lies on exactly one chart, keeps one UV: the mesh keeps its vertices,
+faces and 3D positions, and tangent frames keep their directions where charts do not turn.
+
+Materials showing one base-colour image are packed together; a material keeps its layout,
+with the reason, where the new layout cannot be right for it (:func:`layout_groups`).
+:func:`check_atlas` holds every layout to the guards: no overlap of charts, no flipped face,
+each chart's scale as planned, padding as planned.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from geoscaler.cameras import sample_extent
+from geoscaler.mesh import TexturedMesh
+from geoscaler.packing import SCALE_TOLERANCE, Charts, PackingError, pack, signed_areas
+from geoscaler.protocol import FAR_DISTANCE
+from geoscaler.uvmaps import GRAZING_STRETCH, chart_labels, face_max_levels, uv_corner_ids
+
+HIDDEN_SHARE = 0.25
+"""Smallest planned scale of a chart, relative to the median chart's: charts no training view
+shows (inside, underneath) keep a quarter of the median density rather than none."""
+PACKER_MARGIN = 1
+"""Texels of padding asked of xatlas beyond the plan: its own padding is measured on its
+conservative raster of the charts it stretched, and left charts one texel closer than asked
+(stool, sofa) by the guard's measure, :func:`padding_violations`."""
+MIN_PADDING, MAX_PADDING = 2, 16
+"""Bounds of the texels kept empty between charts (:func:`padding_for`)."""
+
+
+class AtlasError(PackingError):
+    """A new layout that breaks a guard (overlap, flip, scale, padding) or does not fit."""
+
+
+@dataclass
+class Atlas:
+    """A mesh's new UV layout.
+
+    Attributes:
+        uvs: ``(V, 2)`` float32 new UVs (a kept material's vertices keep their own).
+        chart_of_face: ``(F,)`` int64 chart of every face, -1 where the layout is kept.
+        planned: ``(C,)`` float64 planned scale of each chart: new UV units per old one.
+        linear: ``(C, 2, 2)`` float64 the map of each chart, ``new = linear @ old + offset``.
+        offset: ``(C, 2)`` float64.
+        mirrored: ``(C,)`` bool, the chart was transposed by the packer (colour only).
+        paddings: per group, texels kept empty between charts.
+        sizes: per material the texture ``(h, w)`` the layout was packed for (None: none).
+        groups: the material indices packed together into each atlas.
+        kept: material name -> why its layout is kept.
+        footprint: ``(C,)`` float64 screen samples of each chart over the training cameras.
+        facts: what the report says (charts, density gain ``k``, original layout's quirks).
+    """
+
+    uvs: np.ndarray
+    chart_of_face: np.ndarray
+    planned: np.ndarray
+    linear: np.ndarray
+    offset: np.ndarray
+    mirrored: np.ndarray
+    paddings: list[int]
+    sizes: list[tuple[int, int] | None]
+    groups: list[list[int]]
+    kept: dict[str, str] = field(default_factory=dict)
+    footprint: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    facts: dict = field(default_factory=dict)
+
+    @property
+    def scales(self) -> np.ndarray:
+        """``(C,)`` packed scale of each chart: ``sqrt(|det linear|)``."""
+        return np.sqrt(np.abs(np.linalg.det(self.linear))) if len(self.linear) else np.zeros(0)
+
+    @property
+    def padding(self) -> int:
+        """The least padding of any group (texels)."""
+        return min(self.paddings, default=MIN_PADDING)
+
+    @property
+    def moved(self) -> bool:
+        """Some material's layout changed."""
+        return bool((self.chart_of_face >= 0).any())
+
+    def repacked_materials(self) -> list[int]:
+        """Material indices whose layout changed."""
+        return sorted({m for group in self.groups for m in group})
+
+
+# ------------------------------------------------------------------------------ which materials
+
+
+def slot_info(material_properties: dict, slot: str) -> dict:
+    """The glTF texture-info object of ``slot`` (``"normalTexture"`` or
+    ``"EXTENSION/field"``) from a material's properties (empty when absent)."""
+    extension, _, name = slot.rpartition("/")
+    if extension:
+        holder = material_properties.get("extensions", {}).get(extension, {})
+        return holder.get(name, {}) if isinstance(holder, dict) else {}
+    info = material_properties.get(slot, {})
+    return info if isinstance(info, dict) else {}
+
+
+def layout_groups(
+    mesh: TexturedMesh, sizes: Sequence[tuple[int, int] | None], charts: np.ndarray
+) -> tuple[list[list[int]], dict[int, str]]:
+    """Materials packed together (one base-colour image each group) and those that keep their
+    layout, with the reason.
+
+    A material keeps its layout when it has no base-colour map or faces, its output is not
+    square, a map on its UVs has a ``KHR_texture_transform``, a chart joins it to a material
+    of another image, or a map of it is shared with a material of another image (one map
+    cannot follow two layouts).
+
+    Returns:
+        ``(groups, kept)``: lists of material indices; material index -> reason.
+    """
+    kept: dict[int, str] = {}
+    by_image: dict[int, list[int]] = {}
+    for index, material in enumerate(mesh.materials):
+        reason = _material_reason(mesh, index, sizes[index])
+        if reason:
+            kept[index] = reason
+        else:
+            by_image.setdefault(id(material.base_color_texture), []).append(index)
+    group_of = {m: g for g, members in enumerate(by_image.values()) for m in members}
+    face_group = np.array([group_of.get(int(m), -1) for m in mesh.face_material])
+    for chart in np.unique(charts):
+        touched = np.unique(face_group[charts == chart])
+        if len(touched) > 1:
+            for material in np.unique(mesh.face_material[charts == chart]):
+                kept.setdefault(int(material), "a UV chart joins it to another material's image")
+    map_groups: dict[int, set[int]] = {}
+    for index, material in enumerate(mesh.materials):
+        for pixels in material.maps.values():
+            map_groups.setdefault(id(pixels), set()).add(group_of.get(index, -1 - index))
+    for index, material in enumerate(mesh.materials):
+        if any(len(map_groups[id(p)]) > 1 for p in material.maps.values()):
+            kept.setdefault(index, "a map of it is shared with a material of another image")
+    groups = [[m for m in members if m not in kept] for members in by_image.values()]
+    return [g for g in groups if g], kept
+
+
+def _material_reason(mesh: TexturedMesh, index: int, size: tuple[int, int] | None) -> str:
+    material = mesh.materials[index]
+    if material.base_color_texture is None or size is None:
+        return "no base-colour texture"
+    if not (mesh.face_material == index).any():
+        return "no faces"
+    if size[0] != size[1]:
+        return f"its texture is not square ({size[1]}x{size[0]})"
+    for slot in material.textures():
+        info = slot_info(material.properties, slot)
+        if info.get("texCoord", 0) == 0 and "KHR_texture_transform" in info.get("extensions", {}):
+            return f"{slot} has a KHR_texture_transform"
+    return ""
+
+
+def has_normal_map(mesh: TexturedMesh, materials: Sequence[int]) -> bool:
+    """Some material of ``materials`` has a tangent-space normal map on its first UV set."""
+    for index in materials:
+        material = mesh.materials[index]
+        for slot in material.maps:
+            if slot.rpartition("/")[2].endswith("ormalTexture") or slot == "mtl:bump":
+                if slot_info(material.properties, slot).get("texCoord", 0) == 0:
+                    return True
+    return False
+
+
+# ------------------------------------------------------------------------------- what views ask
+
+
+def chart_footprint(charts: np.ndarray, tri_ids: Sequence[torch.Tensor]) -> np.ndarray:
+    """``(C,)`` float64 screen samples of each chart over some views: ``tri_ids`` holds per view
+    the ``(N,)`` face each covered sample sees (:attr:`geoscaler.raster.GBuffer.tri_ids`,
+    occlusion included); ``charts`` is ``(F,)`` (:func:`geoscaler.uvmaps.chart_labels`)."""
+    samples = np.zeros(len(charts))
+    for ids in tri_ids:
+        samples += np.bincount(ids.long().cpu().numpy(), minlength=len(charts))
+    return np.bincount(charts, weights=samples, minlength=int(charts.max(initial=-1)) + 1)
+
+
+uv_areas = signed_areas
+"""``(F,)`` signed UV area of each face (:func:`geoscaler.packing.signed_areas`)."""
+
+
+def planned_scales(footprint: np.ndarray, chart_area: np.ndarray) -> np.ndarray:
+    """``(C,)`` relative linear scale of each chart: ``sqrt(footprint / UV area)``, so that
+    every chart gets texels in proportion to its screen samples; at least
+    :data:`HIDDEN_SHARE` of the median (charts no view shows, degenerate charts). Normalised
+    so the scaled charts have the original total UV area."""
+    live = chart_area > 0
+    scales = np.zeros(len(chart_area))
+    scales[live] = np.sqrt(footprint[live] / chart_area[live])
+    seen = scales[live & (footprint > 0)]
+    median = float(np.median(seen)) if len(seen) else 1.0
+    scales = np.maximum(np.where(live, scales, median), HIDDEN_SHARE * median)
+    total = float((scales**2 * chart_area).sum())
+    return scales * math.sqrt(chart_area.sum() / total) if total > 0 else np.ones(len(scales))
+
+
+def padding_for(mesh: TexturedMesh, faces: np.ndarray, size: tuple[int, int], samples: int) -> int:
+    """Texels kept empty between charts: enough that a lookup at the level most faces read at
+    the far distance (a surface facing the camera at the far view's farthest depth, 90 % of
+    the faces) never mixes two charts: ``2^(level + 1)``, within
+    [:data:`MIN_PADDING`, :data:`MAX_PADDING`]."""
+    extent = sample_extent(FAR_DISTANCE + 1.0, samples) / GRAZING_STRETCH
+    levels = face_max_levels(mesh, faces, size, extent)
+    levels = levels[levels >= 0]
+    level = int(np.percentile(levels, 90)) if len(levels) else 0
+    return int(np.clip(2 ** (level + 1), MIN_PADDING, MAX_PADDING))
+
+
+# ------------------------------------------------------------------------------------- packing
+
+
+def group_charts(
+    mesh: TexturedMesh, materials: Sequence[int], charts: np.ndarray
+) -> tuple[np.ndarray, Charts, np.ndarray]:
+    """The faces of ``materials`` as :class:`~geoscaler.packing.Charts`: ``((G,) face indices,
+    charts, (C',) global chart id of each local chart)``; corners are
+    :func:`~geoscaler.uvmaps.uv_corner_ids` (a vertex is on exactly one chart)."""
+    faces = np.flatnonzero(np.isin(mesh.face_material, materials))
+    ids = uv_corner_ids(mesh)[mesh.faces[faces]]  # (G, 3)
+    used, corner_faces = np.unique(ids, return_inverse=True)
+    corner_faces = corner_faces.reshape(-1, 3)
+    corner_uvs = np.zeros((len(used), 2))
+    corner_uvs[corner_faces.reshape(-1)] = mesh.uvs[mesh.faces[faces]].reshape(-1, 2)
+    global_charts, local = np.unique(charts[faces], return_inverse=True)
+    corner_chart = np.zeros(len(used), np.int64)
+    corner_chart[corner_faces] = local.reshape(-1, 1)
+    return faces, Charts(corner_faces, corner_uvs, corner_chart, len(global_charts)), global_charts
+
+
+def repack(
+    mesh: TexturedMesh,
+    sizes: Sequence[tuple[int, int] | None],
+    tri_ids: Sequence[torch.Tensor],
+    samples_per_side: int,
+    max_scale: float | None = None,
+) -> Atlas:
+    """The new layout of ``mesh`` for textures of ``sizes`` (per material), charts scaled by
+    what some views (the training views, never the validation's) show of them.
+
+    Args:
+        mesh: the mesh.
+        sizes: per material the output texture ``(h, w)`` (None: untextured).
+        tri_ids: per view the face of each covered sample (:func:`chart_footprint`).
+        samples_per_side: the renderer's samples per side (for the padding).
+        max_scale: the most texels of the new texture per texel of the old one at the same
+            size (the original's detail ends there: its size over the output's); None: no cap.
+
+    Returns:
+        The :class:`Atlas`, its guards checked (:func:`check_atlas`).
+    """
+    charts = chart_labels(mesh)
+    groups, kept = layout_groups(mesh, sizes, charts)
+    count = int(charts.max()) + 1 if len(charts) else 0
+    chart_area = np.bincount(charts, np.abs(uv_areas(mesh.uvs, mesh.faces)), minlength=count)
+    atlas = Atlas(
+        np.array(mesh.uvs, np.float32),
+        np.full(len(mesh.faces), -1, np.int64),
+        np.zeros(count),
+        np.tile(np.eye(2), (count, 1, 1)),
+        np.zeros((count, 2)),
+        np.zeros(count, bool),
+        [],
+        list(sizes),
+        [],
+        {},
+        chart_footprint(charts, tri_ids),
+    )
+    for materials in groups:
+        try:
+            _lay_out(mesh, atlas, materials, charts, chart_area, samples_per_side, max_scale)
+        except PackingError as error:  # AtlasError included: that group keeps its layout
+            kept.update({m: str(error) for m in materials})
+    atlas.kept = {mesh.materials[i].name: reason for i, reason in sorted(kept.items())}
+    atlas.facts = layout_facts(mesh, atlas, charts, chart_area)
+    check_atlas(mesh, atlas)
+    return atlas
+
+
+def _lay_out(
+    mesh: TexturedMesh,
+    atlas: Atlas,
+    materials: list[int],
+    charts: np.ndarray,
+    chart_area: np.ndarray,
+    samples_per_side: int,
+    max_scale: float | None,
+) -> None:
+    """Pack the charts of ``materials`` into ``atlas`` (in place), or leave ``atlas`` as it
+    was and raise :class:`~geoscaler.packing.PackingError` when they do not fit or break a
+    guard."""
+    faces, group, ids = group_charts(mesh, materials, charts)
+    size = atlas.sizes[materials[0]][0]
+    padding = padding_for(mesh, mesh.faces[faces], (size, size), samples_per_side)
+    rotate = not has_normal_map(mesh, materials)
+    scales = planned_scales(atlas.footprint[ids], chart_area[ids])
+    packed = pack(group, scales, size, padding + PACKER_MARGIN, rotate)
+    tpu = packed.texels_per_unit
+    if max_scale is not None and (scales * tpu / size > max_scale).any():
+        scales = np.minimum(scales, max_scale * size / tpu)
+        packed = pack(group, scales, size, padding + PACKER_MARGIN, rotate)
+    before = copy.deepcopy(atlas)
+    atlas.planned[ids] = scales * packed.texels_per_unit / size
+    atlas.linear[ids], atlas.offset[ids] = packed.linear, packed.offset
+    atlas.mirrored[ids] = np.linalg.det(packed.linear) < 0
+    vertices = mesh.faces[faces].reshape(-1)
+    atlas.uvs[vertices] = packed.apply(group)[group.corner_faces.reshape(-1)]
+    atlas.chart_of_face[faces] = charts[faces]
+    atlas.groups.append(materials)
+    atlas.paddings.append(padding)
+    problems = group_problems(mesh, atlas, len(atlas.groups) - 1)
+    if problems:
+        atlas.__dict__.update(before.__dict__)
+        raise AtlasError("the new UV layout broke a guard: " + "; ".join(problems))
+
+
+def layout_facts(
+    mesh: TexturedMesh, atlas: Atlas, charts: np.ndarray, chart_area: np.ndarray
+) -> dict:
+    """What the report says of a layout: charts moved, density gains, the original's quirks.
+
+    ``k`` is the gain in linear texel density (new texels per old texel, the same texture
+    size) averaged geometrically over the charts weighted by their screen footprint; ``k_area``
+    weighted by UV area instead."""
+    moved = np.unique(atlas.chart_of_face[atlas.chart_of_face >= 0])
+    scales = atlas.scales[moved]
+    weights = atlas.footprint[moved]
+
+    def mean_gain(w: np.ndarray) -> float:
+        return float(np.exp((w * np.log(scales)).sum() / w.sum())) if w.sum() > 0 else 1.0
+
+    extent = np.zeros((len(chart_area), 2))
+    corners = mesh.uvs[mesh.faces]  # (F, 3, 2)
+    for axis in range(2):
+        high = np.full(len(chart_area), -np.inf)
+        low = np.full(len(chart_area), np.inf)
+        np.maximum.at(high, charts, corners[..., axis].max(axis=1))
+        np.minimum.at(low, charts, corners[..., axis].min(axis=1))
+        extent[:, axis] = high - low
+    signed = np.bincount(charts, uv_areas(mesh.uvs, mesh.faces), minlength=len(chart_area))
+    return {
+        "charts": int(len(moved)),
+        "k": round(mean_gain(weights), 4),
+        "k_area": round(mean_gain(chart_area[moved]), 4),
+        "padding_texels": atlas.padding,
+        "mirrored_by_packer": int(atlas.mirrored[moved].sum()),
+        "tiling_charts": int((extent[moved] > 1.0).any(axis=1).sum()),
+        "mirrored_charts_in_original": int((signed[moved] < 0).sum()),
+        "kept": dict(atlas.kept),
+    }
+
+
+# -------------------------------------------------------------------------------------- guards
+
+
+def chart_texels(
+    uvs: np.ndarray, faces: np.ndarray, labels: np.ndarray, size: int, supersample: int = 2
+) -> tuple[np.ndarray, np.ndarray]:
+    """Texels each face's chart covers: ``((N,) flat texel index, (N,) label)`` pairs, each
+    once, where a texel counts as covered when one of its ``supersample^2`` sample centres
+    lies in a face (edges included); repeat addressing wraps texels onto the grid.
+
+    Args:
+        uvs: ``(V, 2)`` UVs; faces: ``(F, 3)``; labels: ``(F,)`` int chart of each face;
+        size: texels per side.
+    """
+    grid = size * supersample
+    corners = np.asarray(uvs, np.float64)[faces]
+    points = np.stack([corners[..., 0] * grid, (1.0 - corners[..., 1]) * grid], axis=-1)
+    low = np.ceil(points.min(axis=1) - 0.5).astype(np.int64)
+    high = np.floor(points.max(axis=1) - 0.5).astype(np.int64)
+    span = np.maximum(high - low + 1, 0)
+    counts = span[:, 0] * span[:, 1]
+    face = np.repeat(np.arange(len(faces)), counts)
+    rank = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    x = low[face, 0] + rank % np.maximum(span[face, 0], 1) + 0.5
+    y = low[face, 1] + rank // np.maximum(span[face, 0], 1) + 0.5
+    p = points[face]
+    sides = []
+    for a, b in ((0, 1), (1, 2), (2, 0)):
+        edge = p[:, b] - p[:, a]
+        sides.append(edge[:, 0] * (y - p[:, a, 1]) - edge[:, 1] * (x - p[:, a, 0]))
+    sides = np.stack(sides, axis=1)
+    scale = np.abs(sides).max(axis=1, keepdims=True) * 1e-9 + 1e-12
+    inside = (sides >= -scale).all(axis=1) | (sides <= scale).all(axis=1)
+    col = np.mod(np.floor(x[inside] / supersample).astype(np.int64), size)
+    row = np.mod(np.floor(y[inside] / supersample).astype(np.int64), size)
+    pairs = np.unique(np.stack([row * size + col, labels[face[inside]]], axis=1), axis=0)
+    return pairs[:, 0], pairs[:, 1]
+
+
+def overlapping_texels(texels: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Flat texel indices covered by more than one label (:func:`chart_texels`)."""
+    index, count = np.unique(texels, return_counts=True)
+    return index[count > 1]
+
+
+def padding_violations(texels: np.ndarray, labels: np.ndarray, size: int, padding: int) -> int:
+    """Texels of one chart with a texel of another chart at most ``padding`` texels away
+    (Chebyshev distance, repeat addressing): 0 when at least ``padding - 1`` empty texels
+    separate every two charts... counted as pairs of texels closer than ``padding``."""
+    grid = np.full(size * size, -1, np.int64)
+    grid[texels] = labels
+    grid[overlapping_texels(texels, labels)] = -2
+    grid = grid.reshape(size, size)
+    reach = max(padding - 1, 0)
+    bad = 0
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            if (dy, dx) == (0, 0):
+                continue
+            other = np.roll(grid, (dy, dx), axis=(0, 1))
+            bad += int(((grid >= 0) & (other >= 0) & (grid != other)).sum())
+    return bad
+
+
+def atlas_problems(mesh: TexturedMesh, atlas: Atlas) -> list[str]:
+    """Every guard the layout breaks, one line each (empty: none): :func:`group_problems` of
+    every group."""
+    return [line for g in range(len(atlas.groups)) for line in group_problems(mesh, atlas, g)]
+
+
+def group_problems(mesh: TexturedMesh, atlas: Atlas, group: int) -> list[str]:
+    """The guards one group's layout breaks: charts not at their planned scale, faces not
+    moved by their chart's map or flipped, a normal-mapped chart mirrored, charts (pieces,
+    :func:`map_pieces`) overlapping or closer than the group's padding."""
+    materials = atlas.groups[group]
+    faces = np.flatnonzero(np.isin(mesh.face_material, materials) & (atlas.chart_of_face >= 0))
+    chart = atlas.chart_of_face[faces]
+    charts = np.unique(chart)
+    problems = []
+    wrong = np.abs(atlas.scales[charts] / np.maximum(atlas.planned[charts], 1e-30) - 1)
+    if (wrong > SCALE_TOLERANCE).any():
+        problems.append(f"{int((wrong > SCALE_TOLERANCE).sum())} charts not at their planned scale")
+    corners = mesh.faces[faces]  # (M, 3)
+    mapped = np.einsum("mij,mkj->mki", atlas.linear[chart], mesh.uvs[corners].astype(float))
+    mapped += atlas.offset[chart][:, None]
+    if np.abs(mapped - atlas.uvs[corners]).max(initial=0) > 1e-5:
+        problems.append("faces not moved by their chart's map")
+    old, new = uv_areas(mesh.uvs, corners), uv_areas(atlas.uvs, corners)
+    expected = np.linalg.det(atlas.linear[chart]) * old
+    flipped = (np.sign(new) != np.sign(expected)) & (np.abs(expected) > 1e-14)
+    if flipped.any():
+        problems.append(f"{int(flipped.sum())} faces flipped in the new layout")
+    if atlas.mirrored[charts].any() and has_normal_map(mesh, materials):
+        problems.append("a chart of a material with a normal map was mirrored")
+    size = atlas.sizes[materials[0]][0]
+    pieces = map_pieces(atlas)[chart]
+    texels, labels = chart_texels(atlas.uvs, corners, pieces, size)
+    shared = overlapping_texels(texels, labels)
+    if len(shared):
+        problems.append(f"{len(shared)} texels covered by two charts")
+    close = padding_violations(texels, labels, size, atlas.paddings[group])
+    if close:
+        problems.append(f"{close} texel pairs of two charts closer than the padding")
+    return problems
+
+
+def map_pieces(atlas: Atlas) -> np.ndarray:
+    """``(C,)`` int64: charts moved by the same map (the same linear part, offsets within a
+    millionth) share a piece. Charts that shared texels in the original (duplicates: xatlas
+    packs charts with the same UVs as one) share them in the new layout too, as they did: the
+    guards compare pieces, not charts."""
+    keys = np.c_[np.round(atlas.linear.reshape(-1, 4), 9), np.round(atlas.offset, 6)]
+    return np.unique(keys, axis=0, return_inverse=True)[1].reshape(-1)
+
+
+def check_atlas(mesh: TexturedMesh, atlas: Atlas) -> None:
+    """Raise :class:`AtlasError` naming every guard ``atlas`` breaks (:func:`atlas_problems`)."""
+    problems = atlas_problems(mesh, atlas)
+    if problems:
+        raise AtlasError("the new UV layout is wrong: " + "; ".join(problems))

@@ -1,0 +1,152 @@
+"""Baking a texture into a new UV layout of the same mesh (issue 17).
+
+Every texel of the new texture is the average of ``supersample x supersample`` samples, each
+the original texture looked up where the chart's map sends the sample back in the old layout
+(the charts moved by similarities, :mod:`geoscaler.atlas`), filtered as a GPU does
+(:meth:`geoscaler.texture.MipTexture.sample`: trilinear, its level of detail
+from how far one sample moves in the old texture): an area filter over the original's texels.
+Values are filtered as what they hold (:mod:`geoscaler.maps`'s classes): colour in linear
+light (alpha linear), tangent-space normals as vectors renormalised afterwards, data per
+channel. Texels no face covers (gutters) are filled from their charts (pull-push,
+:func:`geoscaler.texture.fill_gutters`), so that mip levels and bilinear taps at a chart's rim
+read the chart's own colours.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy.ndimage import distance_transform_edt
+
+from geoscaler.filters import lanczos
+from geoscaler.maps import resize_map
+from geoscaler.raster import rasterize
+from geoscaler.sizes import COLOR, NORMAL
+from geoscaler.texture import MipTexture, UVFootprint, fill_gutters, linear_to_srgb, srgb_to_linear
+
+
+def decode(pixels: np.ndarray, kind: str) -> torch.Tensor:
+    """``(H, W, C)`` uint8 map to ``(H, W, C)`` float32 values that filter linearly: COLOR's
+    colour channels (all but a last alpha of 2 or 4 channels) decoded from sRGB, NORMAL's
+    first three as vectors ``2 v / 255 - 1``, everything else ``v / 255``."""
+    values = torch.from_numpy(np.asarray(pixels, np.float32) / 255.0)
+    channels = values.shape[2]
+    if kind == COLOR:
+        colour = channels - 1 if channels in (2, 4) else channels
+        values[..., :colour] = srgb_to_linear(values[..., :colour])
+    elif kind == NORMAL and channels >= 3:
+        values[..., :3] = values[..., :3] * 2.0 - 1.0
+    return values
+
+
+def encode(values: torch.Tensor, kind: str) -> np.ndarray:
+    """The inverse of :func:`decode`, to ``(h, w, C)`` uint8; normals are renormalised first
+    (a texel with no direction left points along +z)."""
+    values = values.clone()
+    channels = values.shape[2]
+    if kind == COLOR:
+        colour = channels - 1 if channels in (2, 4) else channels
+        values[..., :colour] = linear_to_srgb(values[..., :colour])
+    elif kind == NORMAL and channels >= 3:
+        vectors = values[..., :3]
+        length = vectors.norm(dim=-1, keepdim=True)
+        up = torch.tensor([0.0, 0.0, 1.0]).expand_as(vectors)
+        vectors = torch.where(length > 1e-6, vectors / length.clamp_min(1e-6), up)
+        values[..., :3] = (vectors + 1.0) / 2.0
+    return values.clamp(0.0, 1.0).mul(255.0).round().to(torch.uint8).numpy()
+
+
+def bake(
+    pixels: np.ndarray,
+    kind: str,
+    layout: ChartMaps,
+    size: int,
+    reach: int,
+    oversample: int = 1,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bake a map into a new layout whose charts moved by known maps.
+
+    Each sample (texel centre of the ``size * oversample`` grid) in a chart, or within
+    ``reach`` texels of one (its nearest), reads the original where the chart's map sends it
+    back: the original's own texels there, the dilation around a chart included, so a
+    bilinear or coarser lookup at a chart's rim sees what it saw in the original. Farther
+    texels are filled from the charts (pull-push). With ``oversample > 1`` the bake is then
+    resized to ``size``: colour with Pillow's Lanczos on its stored sRGB values, exactly the
+    ``lanczos`` baseline, other classes by :func:`geoscaler.maps.resize_map`. Measured on spot
+    at 4x (PSNR-fg on 10 views of Q, the mesh's own layout): an area-filtered bake at ``size``
+    30.19 dB, Lanczos in linear light 30.70 dB, Lanczos on sRGB values 31.62 dB (bicubic
+    31.26): the protocol scores sRGB images, and filtering in linear light softens edges.
+
+    Args:
+        pixels: ``(H, W, C)`` uint8 map in the old layout (repeat addressing).
+        kind: its class (``COLOR``, ``NORMAL`` or ``DATA``, :mod:`geoscaler.sizes`).
+        layout: the faces in the new layout and each chart's map.
+        size: texels per side of the new map.
+        reach: texels around the charts (at ``size``) read from the original.
+        oversample: samples per side of each texel.
+
+    Returns:
+        ``((size, size, C) uint8 map, (size, size) bool texels some face covers)``.
+    """
+    texture = MipTexture(decode(pixels, kind))
+    grid = size * oversample
+    labels, covered = _nearest_chart(layout, grid, reach * oversample)
+    sample = torch.nonzero(labels.view(-1) >= 0).squeeze(1)
+    chart = labels.view(-1)[sample]
+    inverse = torch.linalg.inv(torch.from_numpy(layout.linear))[chart]  # (N, 2, 2)
+    x = (sample % grid).double() + 0.5
+    y = (sample // grid).double() + 0.5
+    new = torch.stack([x / grid, 1.0 - y / grid], dim=1) - torch.from_numpy(layout.offset)[chart]
+    old = torch.einsum("nij,nj->ni", inverse, new).float()
+    step_x = (inverse[:, :, 0] / grid).float()
+    step_y = (-inverse[:, :, 1] / grid).float()
+    footprint = UVFootprint(old[:, 0], old[:, 1], *step_x.T, *step_y.T)
+    values = torch.zeros(grid * grid, texture.channels)
+    values[sample] = texture.sample(footprint).T
+    values = fill_gutters(values.view(grid, grid, -1), labels >= 0)
+    baked = encode(values, kind)
+    if oversample > 1 and kind == COLOR:
+        baked = lanczos(baked, (size, size))  # on the stored (sRGB) values, as the baseline
+    elif oversample > 1:
+        baked = resize_map(baked, (size, size), kind)
+    texel_covered = covered.view(size, oversample, size, oversample).any(3).any(1)
+    return baked, texel_covered.numpy()
+
+
+@dataclass
+class ChartMaps:
+    """Faces in a new layout and the maps that moved their charts there.
+
+    Attributes:
+        uvs: ``(V, 2)`` new UVs in [0, 1] (v up).
+        faces: ``(F, 3)`` the faces to bake.
+        face_chart: ``(F,)`` int64 chart of each face.
+        linear, offset: ``(C, 2, 2)`` and ``(C, 2)`` float64, ``new = linear @ old + offset``.
+    """
+
+    uvs: np.ndarray
+    faces: np.ndarray
+    face_chart: np.ndarray
+    linear: np.ndarray
+    offset: np.ndarray
+
+
+def _nearest_chart(layout: ChartMaps, grid: int, reach: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``((grid, grid) int64 chart of each sample, -1 beyond reach; (grid, grid) bool samples
+    a face covers)``: a sample no face covers takes its nearest covered sample's chart if it
+    is at most ``reach`` samples away."""
+    corners = torch.from_numpy(np.asarray(layout.uvs, np.float64)[layout.faces]).reshape(-1, 2)
+    depth = torch.zeros(len(corners), 1)
+    clip = torch.cat([corners * 2 - 1, depth, torch.ones_like(depth)], dim=1)
+    gbuffer = rasterize(clip, torch.arange(len(clip)).view(-1, 3), grid)
+    labels = np.full(grid * grid, -1, np.int64)
+    labels[gbuffer.pixels.long().numpy()] = layout.face_chart[gbuffer.tri_ids.long().numpy()]
+    labels = labels.reshape(grid, grid)
+    covered = labels >= 0
+    if covered.any() and reach > 0:
+        distance, (rows, cols) = distance_transform_edt(~covered, return_indices=True)
+        near = (distance <= reach) & ~covered
+        labels[near] = labels[rows[near], cols[near]]
+    return torch.from_numpy(labels), torch.from_numpy(covered)

@@ -1,0 +1,268 @@
+"""Packing UV charts into one square atlas with ``xatlas``, each chart moved by a similarity.
+
+:func:`pack` finds the densest packing of charts, each scaled by its own planned factor, into
+one ``size x size`` atlas: a bisection on the texel density, ``xatlas`` packing at each step.
+What comes back is, per chart, an exact similarity (uniform scale at the plan, translation, and
+where allowed a turn by a multiple of 90 degrees or a transpose), derived from where ``xatlas``
+put the chart. Facts about ``xatlas`` 0.0.11 this module works around (each checked on every
+packing, never assumed):
+
+- it stretches each chart along its axes to a whole number of texels (up to two more): the
+  chart is shrunk back to its planned scale inside the box it was given;
+- it silently shrinks charts larger than the atlas: such a packing is refused;
+- it splits a chart folded over itself (faces wound both ways) and may split others, then
+  moves the parts apart; it mishandles charts under a texel or two: such charts are packed as
+  their bounding box (at least :data:`MIN_BOX_TEXELS` wide), the chart inside it;
+- ``rotate_charts`` may transpose a chart (a mirror): callers turn it off where that matters;
+  ``rotate_charts_to_axis`` (a free rotation) is always off.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import xatlas
+
+from geoscaler.errors import GeoscalerError
+
+MIN_BOX_TEXELS = 2.0
+"""Smallest side, in atlas texels, of the box a tiny chart is packed as."""
+SEARCH_STEPS = 12
+"""Bisection steps of the density search (from 1/16 of the all-texels bound: about 0.3 %)."""
+SCALE_TOLERANCE = 1e-3
+"""Relative error allowed between a chart's planned and packed scale."""
+
+
+class PackingError(GeoscalerError):
+    """Charts that do not fit one atlas at their planned scales."""
+
+
+@dataclass
+class Charts:
+    """Charts as UV corners and faces.
+
+    Attributes:
+        corner_faces: ``(G, 3)`` int64 corner of each face corner.
+        corner_uvs: ``(K, 2)`` float64 UVs of the corners.
+        corner_chart: ``(K,)`` int64 chart of each corner, ``0 .. count - 1``.
+        count: number of charts.
+    """
+
+    corner_faces: np.ndarray
+    corner_uvs: np.ndarray
+    corner_chart: np.ndarray
+    count: int
+
+    def face_chart(self) -> np.ndarray:
+        """``(G,)`` chart of each face."""
+        return self.corner_chart[self.corner_faces[:, 0]]
+
+    def extents(self) -> tuple[np.ndarray, np.ndarray]:
+        """``((C, 2) low corner, (C, 2) extent)`` of each chart's UV bounding box."""
+        low = np.full((self.count, 2), np.inf)
+        high = np.full((self.count, 2), -np.inf)
+        for axis in range(2):
+            np.minimum.at(low[:, axis], self.corner_chart, self.corner_uvs[:, axis])
+            np.maximum.at(high[:, axis], self.corner_chart, self.corner_uvs[:, axis])
+        return low, high - low
+
+
+@dataclass
+class Packed:
+    """Where each chart went: ``new = linear @ old + offset``.
+
+    Attributes:
+        linear: ``(C, 2, 2)`` float64, a signed permutation times the chart's planned scale.
+        offset: ``(C, 2)`` float64.
+        texels_per_unit: atlas texels per scaled UV unit (the density found).
+        boxed: ``(C,)`` bool, the chart was packed as its bounding box.
+    """
+
+    linear: np.ndarray
+    offset: np.ndarray
+    texels_per_unit: float
+    boxed: np.ndarray
+
+    def apply(self, charts: Charts) -> np.ndarray:
+        """``(K, 2)`` corner UVs moved by their chart's map."""
+        chart = charts.corner_chart
+        moved = np.einsum("kij,kj->ki", self.linear[chart], charts.corner_uvs)
+        return moved + self.offset[chart]
+
+
+def signed_areas(uvs: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(F,)`` float64 signed area of each face (positive: counter-clockwise)."""
+    corners = np.asarray(uvs, np.float64)[faces]
+    a, b = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    return 0.5 * (a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+
+
+def folded_charts(charts: Charts) -> np.ndarray:
+    """``(C,)`` bool: the chart has faces wound both ways (folded over itself)."""
+    area = signed_areas(charts.corner_uvs, charts.corner_faces)
+    face_chart = charts.face_chart()
+    ids = np.arange(charts.count)
+    return np.isin(ids, face_chart[area > 0]) & np.isin(ids, face_chart[area < 0])
+
+
+def _proxies(
+    charts: Charts, scales: np.ndarray, tpu: float, boxes: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What xatlas packs: ``((P, 2) proxy corners in old UV units, (Q, 3) faces, (P,) chart)``.
+    A chart is its own proxy, or (``boxes``, or under :data:`MIN_BOX_TEXELS` at ``tpu``) its
+    bounding box, widened to that minimum."""
+    low, extent = charts.extents()
+    least = MIN_BOX_TEXELS / (scales * tpu)  # (C,) old UV units
+    boxes = boxes | (extent < least[:, None]).any(axis=1)
+    keep = ~boxes[charts.face_chart()]
+    uvs, faces, chart = [charts.corner_uvs], [charts.corner_faces[keep]], [charts.corner_chart]
+    start = len(charts.corner_uvs)
+    for box in np.flatnonzero(boxes):
+        (u0, v0), (du, dv) = low[box], np.maximum(extent[box], least[box])
+        uvs.append(np.array([[u0, v0], [u0 + du, v0], [u0 + du, v0 + dv], [u0, v0 + dv]]))
+        faces.append(start + np.array([[0, 1, 2], [0, 2, 3]]))
+        chart.append(np.full(4, box))
+        start += 4
+    uvs, faces, chart = np.concatenate(uvs), np.concatenate(faces), np.concatenate(chart)
+    used = np.zeros(len(uvs), bool)
+    used[faces] = True  # the corners of boxed charts are left out
+    return uvs[used], (np.cumsum(used) - 1)[faces], chart[used]
+
+
+def _pack_once(
+    proxies: tuple[np.ndarray, np.ndarray, np.ndarray],
+    scales: np.ndarray,
+    size: int,
+    tpu: float,
+    padding: int,
+    rotate: bool,
+) -> np.ndarray | None:
+    """``(P, 2)`` packed proxy corners in [0, 1], or None when they need more than one atlas
+    or xatlas left a corner out or split one."""
+    uvs, faces, chart = proxies
+    atlas = xatlas.Atlas()
+    atlas.add_uv_mesh((uvs * scales[chart, None]).astype(np.float32), faces.astype(np.uint32))
+    options = xatlas.PackOptions()
+    options.resolution, options.texels_per_unit, options.padding = size, tpu, padding
+    options.rotate_charts, options.rotate_charts_to_axis = rotate, False
+    options.bilinear, options.blockAlign, options.bruteForce = True, False, False
+    atlas.generate(pack_options=options)
+    if atlas.atlas_count != 1 or (atlas.width, atlas.height) != (size, size):
+        return None
+    vmapping, indices, packed = atlas.get_mesh(0)
+    new = np.full((len(uvs), 2), np.nan)
+    new[vmapping] = packed
+    if indices.shape != faces.shape or np.isnan(new).any():
+        return None
+    if not np.allclose(new[vmapping], packed, atol=1e-6):
+        return None
+    return new
+
+
+def _fit(old: np.ndarray, chart: np.ndarray, new: np.ndarray, count: int):
+    """Per chart the least-squares affine map ``new = linear @ old + offset`` and its largest
+    residual: ``((C, 2, 2), (C, 2), (C,))``."""
+    linear, offset, residual = np.zeros((count, 2, 2)), np.zeros((count, 2)), np.zeros(count)
+    for index in range(count):
+        mine = chart == index
+        design = np.c_[old[mine], np.ones(mine.sum())]
+        solution, *_ = np.linalg.lstsq(design, new[mine], rcond=None)
+        linear[index], offset[index] = solution[:2].T, solution[2]
+        residual[index] = np.abs(design @ solution - new[mine]).max()
+    return linear, offset, residual
+
+
+def _similarity(
+    matrix: np.ndarray, old: np.ndarray, new: np.ndarray, planned: float, size: int
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """One chart's exact similarity at scale ``planned`` from its fitted ``matrix``, placed at
+    the low corner of the box xatlas gave it; None unless xatlas moved it by an axis-aligned
+    map at least as large as planned and at most two texels larger."""
+    axis = np.abs(matrix).argmax(axis=0)  # the new axis each old axis went to
+    signs = np.zeros((2, 2))
+    signs[axis, [0, 1]] = np.sign(matrix[axis, [0, 1]])
+    off_axis = np.abs(matrix * (1 - np.abs(signs))).max() / np.abs(matrix).max()
+    if axis[0] == axis[1] or off_axis > 1e-3:
+        return None
+    stretch = np.abs(matrix).max(axis=0)
+    extent = old.max(axis=0) - old.min(axis=0)
+    if (stretch < planned * (1 - SCALE_TOLERANCE)).any():
+        return None  # shrunk
+    if ((stretch - planned) * extent > 2.01 / size).any():
+        return None
+    linear = planned * signs
+    return linear, new.min(axis=0) - (old @ linear.T).min(axis=0)
+
+
+def _split(proxies, new: np.ndarray, count: int, size: int) -> np.ndarray:
+    """``(C,)`` bool: xatlas did not move the chart's proxy as one piece."""
+    old, _, chart = proxies
+    return _fit(old, chart, new, count)[2] > 0.01 / size
+
+
+def _place(
+    charts: Charts,
+    scales: np.ndarray,
+    size: int,
+    tpu: float,
+    padding: int,
+    rotate: bool,
+    boxes: np.ndarray,
+) -> tuple[Packed | None, np.ndarray]:
+    """One packing at density ``tpu``: the charts' similarities, or None; and the boxes used
+    (charts xatlas split are boxed and packed again)."""
+    for _ in range(4):
+        proxies = _proxies(charts, scales, tpu, boxes)
+        new = _pack_once(proxies, scales, size, tpu, padding, rotate)
+        if new is None:
+            return None, boxes
+        split = _split(proxies, new, charts.count, size)
+        if not split.any():
+            break
+        boxes = boxes | split
+    else:
+        return None, boxes
+    old, _, chart = proxies
+    fitted, _, _ = _fit(old, chart, new, charts.count)
+    linear, offset = np.zeros((charts.count, 2, 2)), np.zeros((charts.count, 2))
+    for index in range(charts.count):
+        mine = chart == index
+        planned = scales[index] * tpu / size
+        found = _similarity(fitted[index], old[mine], new[mine], planned, size)
+        if found is None:
+            return None, boxes
+        linear[index], offset[index] = found
+    return Packed(linear, offset, tpu, boxes.copy()), boxes
+
+
+def pack(charts: Charts, scales: np.ndarray, size: int, padding: int, rotate: bool) -> Packed:
+    """The densest packing of ``charts``, each scaled by ``scales`` ``(C,)``, into one
+    ``size x size`` atlas with ``padding`` texels between charts; charts turn by multiples of
+    90 degrees or transpose only where ``rotate``. Deterministic: the same input gives the
+    same output.
+
+    Raises:
+        PackingError: not even a sparse packing holds the charts at their planned scales.
+    """
+    area = float(
+        np.abs(
+            signed_areas(charts.corner_uvs * scales[charts.corner_chart, None], charts.corner_faces)
+        ).sum()
+    )
+    high = size / math.sqrt(max(area, 1e-30))  # every texel used
+    low, best = high / 16, None
+    boxes = folded_charts(charts)
+    for _ in range(SEARCH_STEPS):
+        middle = math.sqrt(low * high)
+        packed, boxes = _place(charts, scales, size, middle, padding, rotate, boxes)
+        if packed is not None:
+            low, best = middle, packed
+        else:
+            high = middle
+    if best is None:
+        raise PackingError(
+            f"the UV charts do not fit one {size}x{size} atlas at their planned scales"
+        )
+    return best
