@@ -23,6 +23,7 @@ what ships never depends on which views the machine managed to cache.
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 import time
@@ -81,6 +82,8 @@ class OptimizeConfig:
         pool_views: training cameras cached up front, drawn from ``distances``.
         distances: camera distance range of the training views.
         lr: peak learning rate; warm-up over ``warmup_steps``, then cosine decay to 0.
+        short_run_boost: at most this factor on the learning rate when the time budget allows
+            fewer steps than ``steps`` (1: none; :func:`_short_run_boost`).
         weight_decay: AdamW weight decay.
         ssim_weight: weight of ``1 - SSIM`` beside the L2 term.
         validate_every: steps between validations on Q (the last step always validates).
@@ -97,6 +100,7 @@ class OptimizeConfig:
     pool_views: int = 48
     distances: tuple[float, float] = TRAINING_RANGE
     lr: float = 0.02
+    short_run_boost: float = 1.0
     weight_decay: float = 0.0
     warmup_steps: int = 10
     ssim_weight: float = 0.1
@@ -269,6 +273,14 @@ def finished_candidate(model: Model, reachable: Sequence[torch.Tensor | None]) -
         return finish(textures, reachable), None if uvs is None else uvs.detach().clone()
 
 
+def _detached(model: Model) -> Candidate:
+    """A copy of the model's candidate, out of the autograd graph."""
+    with torch.no_grad():
+        textures, uvs = model.candidate()
+        copies = [None if t is None else t.detach().clone() for t in textures]
+        return copies, None if uvs is None else uvs.detach().clone()
+
+
 def validate(validation: Validation, candidate: Candidate) -> dict[str, float]:
     """PSNR-fg per validation set of a finished candidate, 8-bit quantised as it ships: what
     is validated is what ships."""
@@ -406,23 +418,26 @@ def optimize(
     farthest = max(
         camera.distance for views in (cameras, *_set_cameras(validation)) for camera in views
     )
-    reachable = [None] * len(validation.sizes)
-    if keeps_uvs:
+
+    @functools.cache
+    def reachable() -> list[torch.Tensor | None]:
+        """Per material the texels a lookup can read, made after the first step (not before
+        it: ~1 s on a 4096^2 original)."""
+        if not keeps_uvs:
+            return [None] * len(validation.sizes)
         masks = reachable_masks(renderer.mesh, validation.sizes, farthest, renderer.resolution)
-        reachable = [None if m is None else m.to(renderer.device) for m in masks]
+        return [None if m is None else m.to(renderer.device) for m in masks]
+
     caching = _Caching(train, validation, config, start, emit)
     caching.until_trainable()
     optimizer = AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     generator = torch.Generator().manual_seed(config.seed)
-    start_candidate = finished_candidate(model, reachable)
+    start_state = _detached(model)
     best = _Best(validation)
     deadline = None if config.time_budget is None else start + config.time_budget
 
     def candidate() -> Candidate:
-        with torch.no_grad():
-            textures, uvs = model.candidate()
-            copies = [None if t is None else t.detach().clone() for t in textures]
-            return copies, None if uvs is None else uvs.detach().clone()
+        return _detached(model)
 
     def offer(scores: dict[str, float], finished: Candidate, step: int) -> bool:
         improved = best.offer(scores, finished, step)
@@ -450,6 +465,8 @@ def optimize(
                 baselines=validation.baseline_scores(),
             )
         )
+        textures, uvs = start_state
+        start_candidate = finish(textures, reachable()), uvs
         best.offer(validate(validation, start_candidate), start_candidate, 0)
 
     def seconds_needed() -> float:
@@ -486,6 +503,7 @@ def optimize(
         elapsed = time.perf_counter() - start
         if step == 1:
             first_step = elapsed
+            reachable()  # now, before the budget's next look at the clock, not in a validation
         done, total = caching.views_done
         emit(
             ProgressEvent(
@@ -507,7 +525,7 @@ def optimize(
         if not best.has_start:
             validate_start()
         if step % config.validate_every == 0 or step == config.steps:
-            finished = finished_candidate(model, reachable)
+            finished = finished_candidate(model, reachable())
             scores = validate(validation, finished)
             validated_step = step
             improved = offer(scores, finished, step)
@@ -520,7 +538,7 @@ def optimize(
     if not best.has_start:
         validate_start()
     if validated_step != step and step > 0:  # stopped between validations: it may be better
-        finished = finished_candidate(model, reachable)
+        finished = finished_candidate(model, reachable())
         offer(validate(validation, finished), finished, step)
     seconds = time.perf_counter() - start
     emit(ProgressEvent("done", step, config.steps, seconds, loss_value, None, best.psnr))
@@ -556,14 +574,27 @@ def _time_spent(now: float, start: float, loop_start: float, config: OptimizeCon
 
 
 def _learning_rate_factor(step: int, time_spent: float, config: OptimizeConfig) -> float:
-    """Linear warm-up over ``warmup_steps``, then cosine decay to 0.
+    """Linear warm-up over ``warmup_steps``, then cosine decay to 0, times the boost of a run
+    that the budget cuts short (:func:`_short_run_boost`).
 
     The decay follows whichever runs out first, the steps or the time budget (so a budgeted
     run ends at a low learning rate too); with a budget the schedule, and so the result, depends
     on the machine's speed.
     """
+    boost = _short_run_boost(step, time_spent, config)
     if step < config.warmup_steps:
-        return (step + 1) / config.warmup_steps
+        return boost * (step + 1) / config.warmup_steps
     span = max(config.steps - config.warmup_steps, 1)
     progress = max((step - config.warmup_steps) / span, time_spent)
-    return 0.5 * (1 + math.cos(math.pi * min(progress, 1.0)))
+    return boost * 0.5 * (1 + math.cos(math.pi * min(progress, 1.0)))
+
+
+def _short_run_boost(step: int, time_spent: float, config: OptimizeConfig) -> float:
+    """``sqrt(steps / expected steps)``, at most ``short_run_boost``: Adam moves a parameter
+    by about the learning rate a step, so a run the budget allows fewer steps than
+    ``config.steps`` takes larger ones. The expected steps are those made so far over the
+    budget's share spent (1 without a budget, or before the first step is timed)."""
+    if config.short_run_boost <= 1 or time_spent <= 0 or step < 1:
+        return 1.0
+    expected = min(step / time_spent, config.steps)
+    return min(config.short_run_boost, math.sqrt(config.steps / expected))

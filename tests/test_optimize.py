@@ -283,6 +283,19 @@ def test_learning_rate_warms_up_then_decays_with_the_steps_or_the_time_whichever
     assert _learning_rate_factor(10, 0.5, config) == pytest.approx(0.5)  # half the time
 
 
+def test_a_run_the_budget_cuts_short_takes_larger_steps_up_to_the_boost():
+    config = OptimizeConfig(steps=301, warmup_steps=1, short_run_boost=2.0)
+    # 100 steps in half the time: 200 expected of 301, sqrt(301 / 200) times the rate
+    assert _learning_rate_factor(100, 0.5, config) == pytest.approx((301 / 200) ** 0.5 * 0.5)
+    # 10 steps in half the time: 20 expected, sqrt(15.05) capped at 2
+    assert _learning_rate_factor(10, 0.5, config) == pytest.approx(2.0 * 0.5)
+    # on pace for every step, without a budget (no time spent), or no boost allowed: none
+    assert _learning_rate_factor(151, 0.5, config) == pytest.approx(0.5)
+    assert _learning_rate_factor(151, 0.0, config) == pytest.approx(0.5)
+    unboosted = OptimizeConfig(steps=301, warmup_steps=1)
+    assert _learning_rate_factor(10, 0.5, unboosted) == pytest.approx(0.5)
+
+
 def test_the_schedule_spends_the_time_left_after_caching():
     # a 60 s budget of which caching took 20 s: 10 s into the steps is a quarter of their time
     config = OptimizeConfig(time_budget=60.0)
