@@ -32,6 +32,7 @@ from pathlib import Path
 
 from geoscaler.bench import find_meshes
 from geoscaler.cameras import view_set_cameras
+from geoscaler.downsampling import product_evaluation
 from geoscaler.filters import bicubic, lanczos, output_sizes, reference_textures
 from geoscaler.io import load_mesh
 from geoscaler.metrics import mean_metrics
@@ -77,9 +78,10 @@ def score_runs(mesh_path: Path, scale: int, distances: list[float], runs: list[d
 
     The shipped textures have the sizes the product gives (``scale`` on the full-resolution
     original); bicubic and Lanczos resize the originals to the same sizes; every image is
-    rendered as protocol 1 does (reference images from the originals reduced to 2048)."""
+    rendered as protocol 1 does, except that the reference images come from the full-resolution
+    originals, as the job's own (the protocol reduces originals over 2048 to 2048 first)."""
     mesh = load_mesh(mesh_path)
-    renderer = Renderer(mesh, "cpu")  # protocol 1: reference images from maps reduced to 2048
+    renderer = Renderer(mesh, "cpu", product_evaluation(PROTOCOL_EVALUATION))
     sizes = output_sizes(mesh, scale, None)  # what the product ships: the originals' sizes
     originals = reference_textures(mesh, None)  # a user's filters resize the originals
     filters = {

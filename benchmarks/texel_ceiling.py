@@ -9,7 +9,7 @@ a target above the ceiling can only be reached by changing the UVs.
 
 Usage:
     python benchmarks/texel_ceiling.py [PATH ...] [--scale 4 8] [--distance 2.4]
-        [--steps 300] [--lr 0.01] [--json OUT.json]
+        [--steps 300] [--lr 0.01] [--json OUT.json] [--product]
 
 PATH: mesh files or folders, as `geoscaler bench` takes them (default: ../shared/data).
 Prints, per mesh and scale, PSNR-fg of bicubic and the gains over it of Lanczos and of the
@@ -29,11 +29,14 @@ import torch
 
 from geoscaler.bench import find_meshes
 from geoscaler.cameras import validation_cameras
+from geoscaler.downsampling import product_evaluation
 from geoscaler.filters import output_sizes
 from geoscaler.io import load_mesh
 from geoscaler.methods import run_method
 from geoscaler.methods.direct import lanczos_texel_model
+from geoscaler.methods.registry import RunContext
 from geoscaler.optimize import OptimizeConfig, optimize
+from geoscaler.protocol import PROTOCOL_EVALUATION
 from geoscaler.render import Renderer, resolve_device
 from geoscaler.texture import linear_to_texture
 from geoscaler.validation import Validation
@@ -42,15 +45,22 @@ from geoscaler.views import ViewCache, ViewSet
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
-def ceiling_row(path: Path, scale: int, distance: float, steps: int, lr: float, device) -> dict:
-    """Bicubic's PSNR-fg and the gains of Lanczos and of the texel ceiling on one mesh."""
+def ceiling_row(
+    path: Path, scale: int, distance: float, steps: int, lr: float, device, product: bool
+) -> dict:
+    """Bicubic's PSNR-fg and the gains of Lanczos and of the texel ceiling on one mesh.
+
+    ``product``: as `geoscaler downsample` works (sizes and reference images from the
+    full-resolution originals), not the protocol's originals reduced to 2048."""
     mesh = load_mesh(path)
-    renderer = Renderer(mesh, device)
+    evaluation = product_evaluation(PROTOCOL_EVALUATION) if product else PROTOCOL_EVALUATION
+    renderer = Renderer(mesh, device, evaluation)
     cameras = validation_cameras(distance)
-    views = ViewCache(ViewSet(renderer, cameras), output_sizes(mesh, scale), with_taps=True)
+    sizes = output_sizes(mesh, scale, evaluation.reference_max_size)
+    views = ViewCache(ViewSet(renderer, cameras), sizes, with_taps=True)
     psnr = {}
     for name in ("bicubic", "lanczos"):
-        textures = run_method(name, mesh, scale).textures
+        textures = run_method(name, mesh, scale, context=RunContext(renderer=renderer)).textures
         psnr[name] = float(views.score(textures)["psnr_fg"].mean())
     start = time.perf_counter()
     config = OptimizeConfig(steps=steps, lr=lr, ssim_weight=0.0, validate_every=steps)
@@ -67,6 +77,7 @@ def ceiling_row(path: Path, scale: int, distance: float, steps: int, lr: float, 
         "lanczos_gain": psnr["lanczos"] - psnr["bicubic"],
         "ceiling_gain": psnr["ceiling"] - psnr["bicubic"],
         "steps": steps,
+        "references": "full resolution" if product else "protocol (2048)",
         "seconds": time.perf_counter() - start,
     }
 
@@ -80,6 +91,11 @@ def main() -> int:
     parser.add_argument("--lr", type=float, default=0.01)
     parser.add_argument("--device", default="auto")
     parser.add_argument("--json", help="also write the rows here")
+    parser.add_argument(
+        "--product",
+        action="store_true",
+        help="sizes and references from the full-resolution originals, as the job ships",
+    )
     args = parser.parse_args()
     device = resolve_device(args.device)
     meshes = find_meshes(args.paths)
@@ -88,7 +104,9 @@ def main() -> int:
     rows = []
     for entry in meshes:
         for scale in args.scale:
-            row = ceiling_row(entry.path, scale, args.distance, args.steps, args.lr, device)
+            row = ceiling_row(
+                entry.path, scale, args.distance, args.steps, args.lr, device, args.product
+            )
             rows.append(row)
             print(
                 f"{row['mesh']:28} {scale:>5} {row['bicubic_psnr_fg']:>8.2f} "
