@@ -138,6 +138,8 @@ def _check_corner(corner: str, seen: dict, totals: dict, path: Path, number: int
             index = int(part)
         except ValueError:
             index = None
+        if index is not None and 0 < index <= totals[kind]:
+            continue  # the common case, checked before any message is made
         where = f"{path}: line {number}: face corner {corner!r}"
         if index is None or index == 0:
             raise GeoscalerError(
