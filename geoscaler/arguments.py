@@ -25,6 +25,7 @@ from geoscaler.methods import MethodOptions, get_method, is_learned, method_name
 from geoscaler.methods.network import check_preset, check_variant
 from geoscaler.protocol import VIEWS
 from geoscaler.sizes import SizePlan, SizeRule, parse_class_value, size_plan
+from geoscaler.uvmodes import check_uv_mode
 
 DEFAULT_TIME_BUDGET = 60.0
 """Seconds a learned method's job may spend when ``--time-budget`` is not given (downsample,
@@ -189,10 +190,13 @@ def network_settings(preset: str | None = None, vgg19: str | Path | None = None)
 
 def method_settings(args: Any) -> dict:
     """The methods' own settings from parsed arguments: the network's ``--preset`` and
-    ``--vgg19``, ``--renderer`` (what learned methods train through), plus ``args.optimize``,
+    ``--vgg19``, ``--renderer`` (what learned methods train through), ``direct``'s ``--uv``
+    (keep, repack or auto), plus ``args.optimize``,
     loop overrides that a caller of :func:`geoscaler.cli.main` injected (None from the
     command line)."""
     settings = network_settings(args.preset, args.vgg19)
+    if getattr(args, "uv", "keep") != "keep":
+        settings["uv"] = check_uv_mode(args.uv)
     loop = dict(args.optimize or {})
     if getattr(args, "renderer", "exact") != "exact":
         loop["training_renderer"] = args.renderer
@@ -217,6 +221,11 @@ def method_options(
     ``bench``: none).
     """
     resolve_device(device)  # no CUDA -> a clear error now, not after loading
+    uv = (settings or {}).get("uv", "keep")
+    if uv != "keep" and "direct" not in methods:
+        raise GeoscalerError(f"--uv {uv}: only the direct method repacks UV charts")
+    if uv != "keep" and (settings or {}).get("optimize", {}).get("training_renderer") == "soft":
+        raise GeoscalerError(f"--uv {uv}: repacking trains through the exact renderer only")
     time_budget = check_time_budget(time_budget)
     if time_budget is None and any(is_learned(m) for m in methods):
         time_budget = default_budget

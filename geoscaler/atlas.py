@@ -121,10 +121,10 @@ def layout_groups(
     """Materials packed together (one base-colour image each group) and those that keep their
     layout, with the reason.
 
-    A material keeps its layout when it has no base-colour map or faces, its output is not
-    square, a map on its UVs has a ``KHR_texture_transform``, a chart joins it to a material
-    of another image, or a map of it is shared with a material of another image (one map
-    cannot follow two layouts).
+    A material keeps its layout when it has no base-colour map or faces, its output or a map
+    on its UVs is not square, a map on its UVs has a ``KHR_texture_transform``, a chart joins
+    it to a material of another image, or a map of it is shared with a material of another
+    image (one map cannot follow two layouts).
 
     Returns:
         ``(groups, kept)``: lists of material indices; material index -> reason.
@@ -163,10 +163,14 @@ def _material_reason(mesh: TexturedMesh, index: int, size: tuple[int, int] | Non
         return "no faces"
     if size[0] != size[1]:
         return f"its texture is not square ({size[1]}x{size[0]})"
-    for slot in material.textures():
+    for slot, pixels in material.textures().items():
         info = slot_info(material.properties, slot)
-        if info.get("texCoord", 0) == 0 and "KHR_texture_transform" in info.get("extensions", {}):
+        if info.get("texCoord", 0) != 0:
+            continue  # another UV set: the map keeps its layout
+        if "KHR_texture_transform" in info.get("extensions", {}):
             return f"{slot} has a KHR_texture_transform"
+        if pixels.shape[0] != pixels.shape[1]:
+            return f"{slot} is not square ({pixels.shape[1]}x{pixels.shape[0]})"
     return ""
 
 

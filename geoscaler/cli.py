@@ -15,6 +15,7 @@ import numpy as np
 from geoscaler import __version__
 from geoscaler.errors import GeoscalerError
 from geoscaler.protocol import PROTOCOL, PROTOCOL_EVALUATION, Evaluation
+from geoscaler.uvmodes import add_uv_argument
 
 if TYPE_CHECKING:
     pass
@@ -276,6 +277,7 @@ def _add_network_arguments(parser: argparse.ArgumentParser, variants: str) -> No
         help="what learned methods train through: exact (default: the renderer a GPU is) or "
         "soft (the paper's soft rasteriser, geoscaler.soft); validation and scores are exact",
     )
+    add_uv_argument(parser)
     parser.add_argument("--variant", help=variants)
     parser.add_argument(
         "--preset",
@@ -578,9 +580,8 @@ def main(
     count), else this call's.
     """
     called_at = None if argv is None else time.perf_counter()
-    # Idle OpenMP threads sleep instead of spinning: beside another CPU-bound process, spinning
-    # threads wait for each other at every parallel region (README, "Busy machines"). Only
-    # takes effect before torch is first imported, as it is by the commands below.
+    # Idle OpenMP threads sleep instead of spinning (README, "Busy machines"); only takes
+    # effect before torch is first imported, as it is by the commands below.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     args = build_parser().parse_args(argv)
     args.evaluation, args.optimize, args.called_at = evaluation, optimize, called_at

@@ -35,7 +35,13 @@ from geoscaler.methods import MethodOptions, MethodResult
 from geoscaler.optimize import Controller
 from geoscaler.protocol import Evaluation
 from geoscaler.render import Renderer
-from geoscaler.shipping import ShippedMap, ship_asset, with_lossless_base_colors
+from geoscaler.shipping import (
+    ShippedMap,
+    relayout_maps,
+    ship_asset,
+    with_lossless_base_colors,
+    without_stale_tangents,
+)
 from geoscaler.sizes import SizePlan, check_scale, size_plan
 
 OUTPUT_SUFFIXES = (".glb", ".gltf", ".obj")
@@ -178,7 +184,11 @@ def export(
     the bytes of its image as written.
     """
     uvs = mesh.uvs if result.uvs is None else result.uvs
-    out_mesh, maps = ship_asset(replace(mesh, uvs=uvs), plan, result.textures, method)
+    premade = {}
+    if result.layout is not None:  # every other map follows the new UV layout
+        premade = relayout_maps(mesh, result.layout, plan)
+        mesh = without_stale_tangents(mesh, result.layout)
+    out_mesh, maps = ship_asset(replace(mesh, uvs=uvs), plan, result.textures, method, premade)
     written = save_mesh(out_mesh, output, overwrite=force, image_format=image_format)
     for shipped in maps:
         shipped.bytes_after = image_bytes(out_mesh, shipped.pixels, output, image_format)

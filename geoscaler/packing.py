@@ -140,23 +140,25 @@ def _pack_once(
     rotate: bool,
 ) -> np.ndarray | None:
     """``(P, 2)`` packed proxy corners in [0, 1], or None when they need more than one atlas
-    or xatlas left a corner out or split one."""
+    or xatlas left a corner out or split one. xatlas packs into ``size - padding`` texels,
+    centred: with repeat addressing the atlas's border is a seam like any other."""
     uvs, faces, chart = proxies
+    inner = size - padding  # xatlas ignores repeat addressing: keep padding across the border
     atlas = xatlas.Atlas()
     atlas.add_uv_mesh((uvs * scales[chart, None]).astype(np.float32), faces.astype(np.uint32))
     options = xatlas.PackOptions()
-    options.resolution, options.texels_per_unit, options.padding = size, tpu, padding
+    options.resolution, options.texels_per_unit, options.padding = inner, tpu, padding
     options.rotate_charts, options.rotate_charts_to_axis = rotate, False
     options.bilinear, options.blockAlign, options.bruteForce = True, False, False
     atlas.generate(pack_options=options)
-    if atlas.atlas_count != 1 or (atlas.width, atlas.height) != (size, size):
+    if atlas.atlas_count != 1 or (atlas.width, atlas.height) != (inner, inner):
         return None
     vmapping, indices, packed = atlas.get_mesh(0)
     new = np.full((len(uvs), 2), np.nan)
-    new[vmapping] = packed
+    new[vmapping] = (packed * inner + padding / 2) / size
     if indices.shape != faces.shape or np.isnan(new).any():
         return None
-    if not np.allclose(new[vmapping], packed, atol=1e-6):
+    if not np.allclose(new[vmapping], (packed * inner + padding / 2) / size, atol=1e-6):
         return None
     return new
 
@@ -246,6 +248,8 @@ def pack(charts: Charts, scales: np.ndarray, size: int, padding: int, rotate: bo
     Raises:
         PackingError: not even a sparse packing holds the charts at their planned scales.
     """
+    if 2 * padding >= size:
+        raise PackingError(f"a padding of {padding} texels leaves no room in {size}x{size}")
     area = float(
         np.abs(
             signed_areas(charts.corner_uvs * scales[charts.corner_chart, None], charts.corner_faces)

@@ -11,7 +11,9 @@ The background is black. Pixel colour = base-colour texture sample x base-colour
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -49,6 +51,40 @@ class Renderer:
         self.positions, self.faces, self.uvs = tensors.positions, tensors.faces, tensors.uvs
         self.face_material, self.factors = tensors.face_material, tensors.factors
         self._reference: list[MipTexture | None] | None = None
+        self.original = mesh
+        self.reference_uvs: torch.Tensor | None = None
+        self.view_memo: dict | None = None
+
+    def relaid(self, uvs: np.ndarray, memo: dict | None = None) -> Renderer:
+        """A renderer of the same mesh in a new UV layout: ``(V, 2)`` new UVs of the same
+        vertices (3D positions and faces unchanged, so every G-buffer is the same). Candidates
+        are rendered with the new UVs, references as before: the original maps on the
+        original UVs. ``memo`` (a dict, shared with other renderers of the mesh) keeps each
+        camera's G-buffer and reference so a view is rasterised once (:meth:`cached_view`).
+        """
+        relaid = copy.copy(self)
+        relaid.mesh = replace(self.mesh, uvs=np.asarray(uvs, np.float32))
+        relaid.uvs = torch.as_tensor(relaid.mesh.uvs, device=self.device)
+        relaid.reference_uvs = self.uvs if self.reference_uvs is None else self.reference_uvs
+        relaid.view_memo = memo
+        return relaid
+
+    def render_reference(self, gbuffer: GBuffer) -> torch.Tensor:
+        """``(image_size, image_size, 3)`` sRGB image of the original: its reference maps on
+        its own UVs, whatever this renderer's layout."""
+        return self.render(gbuffer, self.reference_textures(), self.reference_uvs)
+
+    def cached_view(self, camera: Camera) -> tuple[GBuffer, torch.Tensor, torch.Tensor]:
+        """``(G-buffer, reference image, (H, W) foreground)`` of a camera, from
+        :attr:`view_memo` when it holds them (and kept there when there is a memo)."""
+        key = (camera.direction, camera.distance)
+        if self.view_memo is not None and key in self.view_memo:
+            return self.view_memo[key]
+        gbuffer = self.rasterize(camera)
+        view = gbuffer, self.render_reference(gbuffer), self.foreground(gbuffer)
+        if self.view_memo is not None:
+            self.view_memo[key] = view
+        return view
 
     @property
     def resolution(self) -> int:
@@ -67,7 +103,7 @@ class Renderer:
         """Per material the ``(H, W, C)`` uint8 map views of the original are rendered from:
         the original, reduced to the evaluation's ``reference_max_size`` where it is longer
         (:func:`geoscaler.filters.reference_textures`; None for untextured materials)."""
-        return reference_textures(self.mesh, self.evaluation.reference_max_size)
+        return reference_textures(self.original, self.evaluation.reference_max_size)
 
     def reference_textures(self) -> list[MipTexture | None]:
         """Mip chains of :meth:`reference_maps`, made once per renderer (read only)."""

@@ -10,11 +10,13 @@ the loader gives it); one the rule does not shrink ships as it came, bytes and a
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 
+from geoscaler.atlas import Atlas, slot_info
+from geoscaler.bake import ChartMaps, bake
 from geoscaler.maps import METHOD_NAMES, resize_map, texture_class
 from geoscaler.mesh import Material, SourceImage, TexturedMesh
 from geoscaler.protocol import BYTES_PER_TEXEL
@@ -83,11 +85,40 @@ def with_lossless_base_colors(mesh: TexturedMesh) -> TexturedMesh:
     return replace(mesh, materials=materials)
 
 
+def relayout_maps(
+    mesh: TexturedMesh, atlas: Atlas, plan: SizePlan
+) -> dict[int, tuple[np.ndarray, str]]:
+    """Every map other than base colour that the repacked materials read on their first UV
+    set, baked into the new layout at its class's size (:func:`geoscaler.bake.bake`, from
+    the full-resolution original): ``id(original array) -> (baked array, method)``. Maps on
+    ``TEXCOORD_1`` keep their layout. Normal maps are vectors re-baked as they are: charts
+    of a normal-mapped material only move and scale (:func:`geoscaler.atlas.has_normal_map`),
+    so tangent frames keep their directions."""
+    made: dict[int, tuple[np.ndarray, str]] = {}
+    for group, padding in zip(atlas.groups, atlas.paddings, strict=True):
+        faces = np.isin(mesh.face_material, group) & (atlas.chart_of_face >= 0)
+        layout = ChartMaps(
+            atlas.uvs, mesh.faces[faces], atlas.chart_of_face[faces], atlas.linear, atlas.offset
+        )
+        for index in group:
+            material = mesh.materials[index]
+            for slot, pixels in material.maps.items():
+                if id(pixels) in made or slot_info(material.properties, slot).get("texCoord", 0):
+                    continue
+                kind = texture_class(slot)
+                side = plan.rule(kind).size(*pixels.shape[:2])[0]
+                oversample = int(np.clip(pixels.shape[0] // side, 1, 4))
+                baked, _ = bake(pixels, kind, layout, side, 2 * padding, oversample)
+                made[id(pixels)] = baked, f"re-baked into the new UV layout ({kind})"
+    return made
+
+
 def ship_asset(
     mesh: TexturedMesh,
     plan: SizePlan,
     base_colors: Sequence[np.ndarray | None],
     base_color_method: str,
+    premade: Mapping[int, tuple[np.ndarray, str]] | None = None,
 ) -> tuple[TexturedMesh, list[ShippedMap]]:
     """The mesh as it ships, and what happened to each of its textures.
 
@@ -97,6 +128,8 @@ def ship_asset(
         base_colors: per material the method's ``(h, w, C)`` uint8 base colour (None: the
             material has none); materials sharing one base-colour image get the first one's.
         base_color_method: how the base colours were made, for the report.
+        premade: maps already made, ``id(original array) -> (array, method)`` (the maps of
+            a new UV layout, :func:`relayout_maps`).
 
     Returns:
         The mesh to write (every texture replaced by its shipped array, sharing kept; base
@@ -117,6 +150,8 @@ def ship_asset(
         size = plan.rule(kind).size(*pixels.shape[:2])
         if id(pixels) in made:
             out, method = made[id(pixels)], base_color_method
+        elif premade and id(pixels) in premade:
+            out, method = premade[id(pixels)]
         elif size == pixels.shape[:2]:
             out, method = pixels, "kept"
         else:
@@ -130,3 +165,17 @@ def ship_asset(
         sizes = pixels.shape[:2], out.shape[:2]
         shipped.append(ShippedMap(names, kind, method, *sizes, before, out, source))
     return mesh.with_images(replacements), shipped
+
+
+def without_stale_tangents(mesh: TexturedMesh, atlas: Atlas) -> TexturedMesh:
+    """``mesh`` without its ``TANGENT`` attribute where the new layout turned or mirrored a
+    chart (only charts of materials without a normal map may turn): their tangents no longer
+    follow the UVs, and a glTF viewer computes tangents (MikkTSpace) when there are none.
+    Where charts only moved and scaled, the tangents still hold and are kept."""
+    moved = np.unique(atlas.chart_of_face[atlas.chart_of_face >= 0])
+    linear = atlas.linear[moved]
+    turned = (linear[:, 0, 1] != 0) | (linear[:, 0, 0] < 0) | (linear[:, 1, 1] < 0)
+    if "TANGENT" not in mesh.attributes or not turned.any():
+        return mesh
+    attributes = {k: v for k, v in mesh.attributes.items() if k != "TANGENT"}
+    return replace(mesh, attributes=attributes)

@@ -89,9 +89,15 @@ class ViewSet:
         """Cache the next camera; False (and nothing done) when all are cached."""
         if self.complete:
             return False
-        gbuffer = self.renderer.rasterize(self.cameras[len(self)])
-        self._references.append(self.renderer.render(gbuffer, self.renderer.reference_textures()))
-        self._foreground.append(self.renderer.foreground(gbuffer))
+        camera = self.cameras[len(self)]
+        if isinstance(self.renderer, Renderer):  # references on the original's own UVs
+            gbuffer, reference, foreground = self.renderer.cached_view(camera)
+        else:
+            gbuffer = self.renderer.rasterize(camera)
+            reference = self.renderer.render(gbuffer, self.renderer.reference_textures())
+            foreground = self.renderer.foreground(gbuffer)
+        self._references.append(reference)
+        self._foreground.append(foreground)
         self.gbuffers.append(gbuffer)
         self._stacked = None
         return True
@@ -174,11 +180,20 @@ class ViewCache:
         views: cached G-buffers and reference renders.
         sizes: per material the candidate's texture ``(h, w)`` (None: untextured).
         with_taps: cache the taps (valid only while the UVs stay the mesh's own).
+        renderer: renders candidates (default: the view set's); a renderer of the same mesh
+            in another UV layout (:meth:`~geoscaler.render.Renderer.relaid`) renders them in
+            that layout on the same G-buffers and references.
     """
 
-    def __init__(self, views: ViewSet, sizes: Sequence[tuple[int, int] | None], with_taps: bool):
+    def __init__(
+        self,
+        views: ViewSet,
+        sizes: Sequence[tuple[int, int] | None],
+        with_taps: bool,
+        renderer: Renderer | None = None,
+    ):
         self.views = views
-        self.renderer = views.renderer
+        self.renderer = views.renderer if renderer is None else renderer
         device = self.renderer.device
         self.sizes = list(sizes)
         self.layouts = [None if s is None else MipLayout(*s, device) for s in sizes]

@@ -19,7 +19,7 @@ PACKAGES = {"geoscaler": ROOT / "geoscaler", "geoscaler.app": ROOT / "app"}
 LAYERS = [
     ["errors", "protocol"],
     [""],  # the package itself (geoscaler/__init__.py)
-    ["texture", "raster", "metrics", "figures", "sizes", "devices", "adamw", "packing"],
+    ["texture", "raster", "metrics", "figures", "sizes", "devices", "adamw", "packing", "uvmodes"],
     ["mesh", "cameras"],
     ["filters", "io", "procedural"],
     ["render", "uvmaps", "maps", "soft"],

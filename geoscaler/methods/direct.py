@@ -1,7 +1,8 @@
 """Method ``direct``: the texels of the small texture are the parameters.
 
 Initialised from Lanczos, held as sRGB values in [0, 1] and optimised through the protocol
-renderer, which decodes them and filters in linear light; the mesh's UVs stay as they are.
+renderer, which decodes them and filters in linear light; the mesh's UVs stay as they are,
+unless ``--uv repack`` or ``auto`` moves the charts first (:mod:`geoscaler.methods.repacked`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from geoscaler.methods.registry import (
     output_sizes_for,
     register,
 )
+from geoscaler.methods.repacked import repacked_direct
 from geoscaler.render import Renderer
 from geoscaler.sizes import SizeRule
 from geoscaler.texture import linear_to_srgb, srgb_to_linear, texture_to_linear
@@ -73,22 +75,51 @@ class TexelModel:
             texture.clamp_(0.0, 1.0)
 
 
-def lanczos_texel_model(mesh: TexturedMesh, rule: SizeRule, renderer: Renderer) -> TexelModel:
-    """Free texels started from ``renderer``'s reference maps resized with Lanczos to the
-    sizes ``rule`` gives, on ``renderer``'s device."""
+def lanczos_starts(
+    mesh: TexturedMesh, rule: SizeRule, renderer: Renderer
+) -> list[torch.Tensor | None]:
+    """Per material the ``(h, w, 3)`` linear start: ``renderer``'s reference map resized with
+    Lanczos to the size ``rule`` gives, on ``renderer``'s device (materials showing one map
+    share one tensor; None: untextured)."""
     sizes = output_sizes_for(mesh, rule, renderer)
     starts: dict[int, torch.Tensor] = {}  # one start per distinct map: shared maps stay shared
     for texture, size in zip(renderer.reference_maps(), sizes, strict=True):
         if texture is not None and id(texture) not in starts:
             starts[id(texture)] = texture_to_linear(lanczos(texture, size), renderer.device)
-    return TexelModel([None if t is None else starts[id(t)] for t in renderer.reference_maps()])
+    return [None if t is None else starts[id(t)] for t in renderer.reference_maps()]
+
+
+def lanczos_texel_model(mesh: TexturedMesh, rule: SizeRule, renderer: Renderer) -> TexelModel:
+    """Free texels started from ``renderer``'s reference maps resized with Lanczos to the
+    sizes ``rule`` gives, on ``renderer``'s device."""
+    return TexelModel(lanczos_starts(mesh, rule, renderer))
+
+
+def start_model(
+    mesh: TexturedMesh,
+    rule: SizeRule,
+    renderer: Renderer,
+    starts: list[torch.Tensor | None] | None = None,
+) -> TexelModel:
+    """Free texels from per-material linear ``starts`` (a new layout's bake), Lanczos where a
+    start is None (a material that keeps its layout) or without ``starts``."""
+    lanczos_start = lanczos_starts(mesh, rule, renderer)
+    if starts is None:
+        return TexelModel(lanczos_start)
+    return TexelModel(
+        [s if s is not None else t for s, t in zip(starts, lanczos_start, strict=True)]
+    )
 
 
 def direct(
     mesh: TexturedMesh, rule: SizeRule, options: MethodOptions, context: RunContext
 ) -> MethodResult:
-    """Optimise the texels of Lanczos-initialised textures at the sizes ``rule`` gives."""
+    """Optimise the texels of Lanczos-initialised textures at the sizes ``rule`` gives; with
+    ``options.settings["uv"]`` ``"repack"`` or ``"auto"``, in a new UV layout
+    (:func:`geoscaler.methods.repacked.repacked_direct`)."""
     started = time.perf_counter()  # the time budget covers the set-up too
+    if options.settings.get("uv", "keep") != "keep":
+        return repacked_direct(mesh, rule, options, context, started, start_model, DEFAULT_CONFIG)
     renderer = method_renderer(mesh, options, context)
     model = lanczos_texel_model(mesh, rule, renderer)
     config = loop_config(DEFAULT_CONFIG, options, context)

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from geoscaler.atlas import Atlas
 from geoscaler.errors import GeoscalerError
 from geoscaler.filters import output_sizes, reference_textures
 from geoscaler.mesh import TexturedMesh
@@ -85,12 +86,15 @@ class MethodResult:
         uvs: ``(V, 2)`` float32 new UVs, or None when the method keeps the mesh's own.
         seconds: wall-clock time of the method (the job adds what it spent for it).
         details: method-specific facts for the report (steps run, device, ...).
+        layout: the new UV layout when the method repacked the charts (``uvs`` are its UVs;
+            the export bakes every other map of the repacked materials into it), else None.
     """
 
     textures: list[np.ndarray | None]
     uvs: np.ndarray | None = None
     seconds: float = 0.0
     details: dict[str, Any] = field(default_factory=dict)
+    layout: Atlas | None = None
 
 
 Run = Callable[[TexturedMesh, SizeRule, MethodOptions, RunContext], MethodResult]

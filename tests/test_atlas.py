@@ -1,0 +1,249 @@
+"""Repacking a UV atlas (issue 17): charts scaled by their footprint, packed as similarities,
+the guards, and the bake into the new layout."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from geoscaler.atlas import (
+    atlas_problems,
+    chart_footprint,
+    chart_texels,
+    layout_groups,
+    overlapping_texels,
+    padding_violations,
+    planned_scales,
+    repack,
+)
+from geoscaler.bake import ChartMaps, bake, decode, encode
+from geoscaler.cameras import validation_cameras
+from geoscaler.mesh import Material, TexturedMesh, compute_vertex_normals
+from geoscaler.packing import Charts, PackingError, pack
+from geoscaler.render import Renderer
+from geoscaler.sizes import COLOR, DATA, NORMAL
+from geoscaler.uvmaps import chart_labels
+from geoscaler.views import ViewSet
+
+SIZE = 64
+
+
+def cube_mesh(texture_size: int = 128, chart_side: float = 0.12) -> TexturedMesh:
+    """A cube whose six faces are six square charts of ``chart_side`` in a 3 x 2 grid: about
+    9 % of the texture used, as a scan's atlas."""
+    corners = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float64)
+    positions, uvs, faces = [], [], []
+    for axis in range(3):
+        for sign in (-1.0, 1.0):
+            u, v = np.eye(3)[(axis + 1) % 3], np.eye(3)[(axis + 2) % 3]
+            normal = np.eye(3)[axis] * sign
+            if sign < 0:
+                u, v = v, u
+            base = len(positions)
+            for cu, cv in corners:
+                positions.append(0.5 * normal + (cu - 0.5) * u + (cv - 0.5) * v)
+            index = axis * 2 + (sign > 0)
+            origin = np.array([0.05 + 0.3 * (index % 3), 0.1 + 0.4 * (index // 3)])
+            uvs.extend(origin + chart_side * corners)
+            faces.extend([[base, base + 1, base + 2], [base, base + 2, base + 3]])
+    positions = np.array(positions, np.float32)
+    faces = np.array(faces, np.int64)
+    rng = np.random.default_rng(0)
+    texture = rng.integers(0, 256, (texture_size, texture_size, 3), dtype=np.uint8)
+    vertex_to_point = np.arange(len(positions))
+    return TexturedMesh(
+        positions=positions,
+        faces=faces,
+        uvs=np.array(uvs, np.float32),
+        normals=compute_vertex_normals(positions, faces, vertex_to_point),
+        vertex_to_point=vertex_to_point,
+        face_material=np.zeros(len(faces), np.int64),
+        materials=[Material("cube", texture)],
+    )
+
+
+def footprint_ids(mesh: TexturedMesh, weights: list[int]) -> list[torch.Tensor]:
+    """Fake G-buffer face ids: face ``f`` seen by ``weights[f // 2]`` samples (two faces a
+    chart)."""
+    return [torch.tensor(np.repeat(np.arange(len(mesh.faces)), np.repeat(weights, 2)))]
+
+
+def test_footprint_counts_the_samples_of_each_chart():
+    charts = np.array([0, 0, 1, 2])
+    ids = [torch.tensor([0, 1, 1, 3]), torch.tensor([2, 3])]
+    np.testing.assert_array_equal(chart_footprint(charts, ids), [3.0, 1.0, 2.0])
+
+
+def test_planned_scales_give_texels_in_proportion_to_screen_samples():
+    area = np.array([1.0, 1.0, 4.0])
+    scales = planned_scales(np.array([1.0, 4.0, 4.0]), area)
+    # density ~ sqrt(samples / area): 1, 2, 1, then normalised to the original total area
+    np.testing.assert_allclose(scales / scales[0], [1.0, 2.0, 1.0])
+    np.testing.assert_allclose((scales**2 * area).sum(), area.sum())
+
+
+def test_hidden_charts_keep_a_quarter_of_the_median_density():
+    scales = planned_scales(np.array([4.0, 4.0, 0.0]), np.ones(3))
+    assert scales[2] == pytest.approx(0.25 * scales[0])
+
+
+def test_repack_raises_the_density_of_a_sparse_atlas():
+    mesh = cube_mesh()
+    atlas = repack(mesh, [(SIZE, SIZE)], footprint_ids(mesh, [10] * 6), 256)
+    assert atlas.moved and atlas.kept == {}
+    assert atlas.facts["charts"] == 6
+    # six squares of 0.12 side: three abreast, each up to a third of the side less padding
+    assert 1.8 < atlas.facts["k"] < 64 / 3 / (0.12 * 64)
+    assert atlas.uvs.min() >= 0 and atlas.uvs.max() <= 1
+    assert atlas.uvs.shape == mesh.uvs.shape  # every vertex keeps one UV: no split
+
+
+def test_each_chart_moves_by_a_similarity_at_its_planned_scale():
+    mesh = cube_mesh()
+    atlas = repack(mesh, [(SIZE, SIZE)], footprint_ids(mesh, [40, 10, 10, 10, 10, 10]), 256)
+    np.testing.assert_allclose(atlas.scales, atlas.planned, rtol=1e-9)
+    assert atlas.planned[0] == pytest.approx(2 * atlas.planned[1])  # 4x the samples, 2x side
+    for matrix in atlas.linear:
+        signs = matrix / np.abs(matrix).max()
+        assert sorted(np.abs(signs).ravel().round(12).tolist()) == [0, 0, 1, 1]
+    mapped = np.einsum("fij,fkj->fki", atlas.linear[chart_labels(mesh)], mesh.uvs[mesh.faces])
+    mapped += atlas.offset[chart_labels(mesh)][:, None]
+    np.testing.assert_allclose(mapped, atlas.uvs[mesh.faces], atol=1e-6)
+
+
+def test_the_new_layout_passes_every_guard():
+    mesh = cube_mesh()
+    atlas = repack(mesh, [(SIZE, SIZE)], footprint_ids(mesh, [40, 10, 20, 10, 5, 10]), 256)
+    assert atlas_problems(mesh, atlas) == []
+    texels, labels = chart_texels(atlas.uvs, mesh.faces, atlas.chart_of_face, SIZE)
+    assert len(overlapping_texels(texels, labels)) == 0
+    assert padding_violations(texels, labels, SIZE, atlas.padding) == 0
+
+
+def test_the_same_input_gives_the_same_uvs():
+    mesh = cube_mesh()
+    ids = footprint_ids(mesh, [40, 10, 20, 10, 5, 10])
+    first = repack(mesh, [(SIZE, SIZE)], ids, 256)
+    second = repack(mesh, [(SIZE, SIZE)], ids, 256)
+    np.testing.assert_array_equal(first.uvs, second.uvs)
+
+
+def test_guards_name_an_overlap_a_flip_and_a_wrong_scale():
+    mesh = cube_mesh()
+    atlas = repack(mesh, [(SIZE, SIZE)], footprint_ids(mesh, [10] * 6), 256)
+    moved = replace(atlas, uvs=atlas.uvs.copy(), planned=atlas.planned.copy())
+    charts = chart_labels(mesh)
+    moved.uvs[mesh.faces[charts == 1]] = moved.uvs[mesh.faces[charts == 0]]  # onto chart 0
+    problems = " ".join(atlas_problems(mesh, moved))
+    assert "covered by two charts" in problems and "not moved by their chart's map" in problems
+    flipped = replace(atlas, uvs=atlas.uvs.copy())
+    vertices = np.unique(mesh.faces[charts == 2])
+    centre = flipped.uvs[vertices].mean(axis=0)
+    flipped.uvs[vertices, 0] = 2 * centre[0] - flipped.uvs[vertices, 0]  # mirrored in place
+    assert "2 faces flipped" in " ".join(atlas_problems(mesh, flipped))
+    wrong = replace(atlas, planned=atlas.planned * 1.01)
+    assert atlas_problems(mesh, wrong)[0] == "6 charts not at their planned scale"
+
+
+def test_padding_violations_count_charts_closer_than_the_padding():
+    texels = np.array([0, 3])  # texels (0, 0) and (0, 3) of an 8 x 8 grid: 3 apart
+    labels = np.array([0, 1])
+    assert padding_violations(texels, labels, 8, 3) == 0
+    assert padding_violations(texels, labels, 8, 4) == 2  # each sees the other
+
+
+def test_charts_larger_than_the_atlas_are_refused_not_shrunk():
+    uvs = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float64)
+    charts = Charts(np.array([[0, 1, 2], [0, 2, 3]]), uvs, np.zeros(4, np.int64), 1)
+    packed = pack(charts, np.ones(1), 32, 2, rotate=False)
+    assert packed.linear[0, 0, 0] * 32 <= 32 - 2  # within the atlas and its padding
+    with pytest.raises(PackingError):  # 2000 texels of padding leave no room
+        pack(charts, np.ones(1), 32, 2000, rotate=False)
+
+
+def test_normal_mapped_charts_never_turn_or_mirror():
+    mesh = cube_mesh()
+    normal = np.full((128, 128, 3), (128, 128, 255), np.uint8)
+    mesh.materials[0] = replace(mesh.materials[0], maps={"normalTexture": normal})
+    atlas = repack(mesh, [(SIZE, SIZE)], footprint_ids(mesh, [40, 10, 20, 10, 5, 10]), 256)
+    assert (atlas.linear[:, 0, 1] == 0).all() and (atlas.linear[:, 0, 0] > 0).all()
+    assert (atlas.linear[:, 1, 1] > 0).all() and not atlas.mirrored.any()
+
+
+def test_materials_keep_their_layout_with_the_reason():
+    mesh = cube_mesh()
+    textures = mesh.materials[0].base_color_texture
+    transformed = {"normalTexture": {"extensions": {"KHR_texture_transform": {}}}}
+    mesh.materials = [
+        Material("moved", textures),
+        Material("transformed", textures.copy(), properties=transformed,
+                 maps={"normalTexture": np.zeros((8, 8, 3), np.uint8)}),
+        Material("wide", np.zeros((8, 16, 3), np.uint8)),
+    ]  # fmt: skip
+    mesh.face_material = np.arange(len(mesh.faces)) // 4  # two charts each
+    sizes = [(SIZE, SIZE), (SIZE, SIZE), (4, 8)]
+    groups, kept = layout_groups(mesh, sizes, chart_labels(mesh))
+    assert groups == [[0]]
+    assert kept == {
+        1: "normalTexture has a KHR_texture_transform",
+        2: "its texture is not square (8x4)",
+    }
+
+
+def test_bake_into_the_same_layout_reproduces_the_texture():
+    mesh = cube_mesh(texture_size=64)
+    texture = mesh.materials[0].base_color_texture
+    charts = chart_labels(mesh)
+    identity = ChartMaps(
+        mesh.uvs, mesh.faces, charts, np.tile(np.eye(2), (6, 1, 1)), np.zeros((6, 2))
+    )
+    baked, covered = bake(texture, COLOR, identity, 64, reach=2)
+    assert covered.sum() > 0
+    np.testing.assert_array_equal(baked[covered], texture[covered])
+
+
+def test_bake_follows_each_chart_to_its_new_place():
+    mesh = cube_mesh(texture_size=64)
+    texture = mesh.materials[0].base_color_texture
+    atlas = repack(mesh, [(64, 64)], footprint_ids(mesh, [10] * 6), 256)
+    layout = ChartMaps(atlas.uvs, mesh.faces, atlas.chart_of_face, atlas.linear, atlas.offset)
+    baked, covered = bake(texture, COLOR, layout, 64, reach=2)
+    # a texel centre of the new map reads the original where its chart's map sends it back
+    rows, cols = np.nonzero(covered)
+    row, col = rows[len(rows) // 2], cols[len(cols) // 2]
+    point = np.array([(col + 0.5) / 64, 1 - (row + 0.5) / 64])
+    texels, labels = chart_texels(atlas.uvs, mesh.faces, atlas.chart_of_face, 64)
+    chart = labels[texels == row * 64 + col][0]
+    old = np.linalg.solve(atlas.linear[chart], point - atlas.offset[chart])
+    assert atlas.scales[chart] >= 1.0  # magnified: the nearest original texels, bilinear
+    source = texture[int((1 - old[1]) * 64), int(old[0] * 64)].astype(int)
+    assert np.abs(baked[row, col].astype(int) - source).max() <= 64
+
+
+def test_normals_bake_as_unit_vectors_and_data_per_channel():
+    vectors = np.array([[[0.6, 0.0, 0.8]]], np.float32)
+    pixels = np.round((vectors + 1) / 2 * 255).astype(np.uint8)
+    decoded = decode(pixels, NORMAL)
+    np.testing.assert_allclose(decoded.numpy(), vectors, atol=1.01 / 255)  # 8-bit steps
+    shortened = torch.tensor([[[0.3, 0.0, 0.4]]])
+    np.testing.assert_array_equal(encode(shortened, NORMAL), pixels)  # renormalised
+    data = np.array([[[10, 200]]], np.uint8)
+    np.testing.assert_array_equal(encode(decode(data, DATA), DATA), data)
+
+
+def test_a_relaid_renderer_sees_the_same_views_and_references():
+    mesh = cube_mesh()
+    renderer = Renderer(mesh, "cpu")
+    atlas = repack(mesh, [(SIZE, SIZE)], footprint_ids(mesh, [10] * 6), 256)
+    relaid = renderer.relaid(atlas.uvs, {})
+    cameras = validation_cameras()[:3]
+    original, moved = ViewSet(renderer, cameras), ViewSet(relaid, cameras)
+    for view in range(3):
+        reference, foreground = original.reference(view)
+        moved_reference, moved_foreground = moved.reference(view)
+        assert torch.equal(foreground, moved_foreground)  # view for view
+        assert torch.equal(reference, moved_reference)  # the original on its own UVs
+    assert relaid.view_memo and len(relaid.view_memo) == 3
