@@ -144,14 +144,16 @@ def repacked_direct(
         starts = [None if b is None else linear[id(b)] for b in baked]  # groups share one
         layout_start = start_model(mesh, rule, renderer, starts)
     choice = "repack" if atlas.moved else "keep"
-    facts: dict[str, Any] = {"uv": mode, "layout": atlas.facts}
-    if mode == "auto" and atlas.moved:
+    facts: dict[str, Any] = {"uv": mode, "layout": atlas.facts, "auto_choice": "keep"}
+    if atlas.moved:  # what auto decides on (repack records it too, for comparison)
         scores = {
             "keep": _training_psnr(footprint_views, renderer, keep_start, sizes),
             "repack": _training_psnr(footprint_views, relaid, layout_start, sizes),
         }
-        choice = max(scores, key=scores.get)
-        facts["auto_start_psnr"] = {k: round(v, 4) for k, v in scores.items()}
+        facts["start_psnr_training_views"] = {k: round(v, 4) for k, v in scores.items()}
+        facts["auto_choice"] = max(scores, key=scores.get)
+        if mode == "auto":
+            choice = facts["auto_choice"]
     facts["layout_used"] = choice
     validation = context.validation
     if validation is None:

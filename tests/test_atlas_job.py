@@ -1,0 +1,142 @@
+"""``direct --uv repack|auto`` through the job (issue 17): new UVs, every map following them,
+references from the original, and the files written."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from geoscaler.cli import main
+from geoscaler.errors import GeoscalerError
+from geoscaler.io import load_mesh, save_mesh
+from geoscaler.job import compare_mesh
+from geoscaler.methods import MethodOptions, run_method
+from geoscaler.methods.registry import RunContext, get_method, register, unregister
+from geoscaler.protocol import Evaluation
+
+sys.path.insert(0, str(Path(__file__).parent))
+from test_atlas import cube_mesh  # noqa: E402
+
+QUICK = Evaluation.quick((0, 20, 40))
+LOOP = {"pool_views": 8, "validate_every": 2}
+
+
+def options(uv: str, steps: int = 2) -> MethodOptions:
+    return MethodOptions(device="cpu", steps=steps, settings={"uv": uv, "optimize": LOOP})
+
+
+@pytest.fixture
+def cube():
+    return cube_mesh(texture_size=256)
+
+
+def test_repack_returns_new_uvs_of_the_same_vertices_and_its_layout(cube):
+    from geoscaler.render import Renderer
+
+    renderer = Renderer(cube, "cpu", QUICK)
+    result = run_method("direct", cube, 4, options("repack"), RunContext(renderer))
+    assert result.layout is not None and result.uvs.shape == cube.uvs.shape
+    np.testing.assert_array_equal(result.uvs, result.layout.uvs)
+    assert result.textures[0].shape == (64, 64, 3)
+    assert result.details["layout_used"] == "repack"
+    assert result.details["layout"]["k"] > 1.5
+    assert set(result.details["start_psnr_training_views"]) == {"keep", "repack"}
+
+
+def test_auto_takes_the_layout_whose_start_renders_better_on_training_views(cube):
+    from geoscaler.render import Renderer
+
+    renderer = Renderer(cube, "cpu", QUICK)
+    result = run_method("direct", cube, 4, options("auto"), RunContext(renderer))
+    scores = result.details["start_psnr_training_views"]
+    assert result.details["layout_used"] == max(scores, key=scores.get)
+    assert (result.uvs is not None) == (result.details["layout_used"] == "repack")
+
+
+def test_the_job_scores_repack_beside_direct_on_the_same_views(cube):
+    from geoscaler.render import Renderer
+
+    direct = get_method("direct")
+    register("direct-repack-test", direct.run, learned=True, settings={"uv": "repack"})
+    try:
+        comparison = compare_mesh(
+            cube,
+            [4],
+            ["bicubic", "direct", "direct-repack-test"],
+            options=MethodOptions(device="cpu", steps=4, settings={"optimize": LOOP}),
+            renderer=Renderer(cube, "cpu", QUICK),
+        )
+    finally:
+        unregister("direct-repack-test")
+    rows = {row["method"]: row for row in comparison.rows}
+    assert rows["direct-repack-test"]["views"] == rows["direct"]["views"] == 3
+    # a sparse atlas at 4x: twice the texel density is worth more than 4 steps of direct
+    assert rows["direct-repack-test"]["gain_db"] > rows["direct"]["gain_db"]
+
+
+def test_downsample_writes_the_new_uvs_and_rebakes_every_map(tmp_path, cube):
+    normal = np.zeros((256, 256, 3), np.uint8)
+    normal[..., :] = (128, 128, 255)
+    normal[::16, :, 0] = 200  # stripes: some detail to bake
+    data = np.random.default_rng(1).integers(0, 256, (256, 256, 3), dtype=np.uint8)
+    maps = {"normalTexture": normal, "metallicRoughnessTexture": data}
+    cube.materials[0] = replace(cube.materials[0], maps=maps)
+    save_mesh(cube, tmp_path / "cube.glb")
+    status = main(
+        [
+            "downsample", str(tmp_path / "cube.glb"), "-o", str(tmp_path / "small.glb"),
+            "--scale", "4", "--uv", "repack", "--steps", "2", "--device", "cpu",
+            "--report", str(tmp_path / "report.json"),
+        ],
+        evaluation=QUICK,
+        optimize=LOOP,
+    )  # fmt: skip
+    assert status == 0
+    written = load_mesh(tmp_path / "small.glb")
+    assert len(written.uvs) == len(cube.uvs)  # the same vertices
+    assert not np.allclose(written.uvs, cube.uvs)
+    assert written.uvs.min() >= 0 and written.uvs.max() <= 1
+    material = written.materials[0]
+    assert material.base_color_texture.shape == (64, 64, 3)
+    assert material.maps["normalTexture"].shape == (64, 64, 3)
+    assert material.maps["metallicRoughnessTexture"].shape == (64, 64, 3)
+    report = (tmp_path / "report.json").read_text()
+    assert "re-baked into the new UV layout" in report and '"layout_used": "repack"' in report
+
+
+def test_downsample_output_passes_the_gltf_validator(tmp_path, cube):
+    from gltf_validator import ValidatorMissing, validate
+
+    save_mesh(cube, tmp_path / "cube.glb")
+    main(
+        ["downsample", str(tmp_path / "cube.glb"), "-o", str(tmp_path / "small.glb"),
+         "--uv", "repack", "--steps", "1", "--device", "cpu"],
+        evaluation=QUICK,
+        optimize=LOOP,
+    )  # fmt: skip
+    try:
+        _, reports = validate([tmp_path / "small.glb"])
+    except ValidatorMissing as missing:
+        pytest.skip(str(missing))
+    assert reports[str(tmp_path / "small.glb")]["errors"] == 0
+
+
+def test_uv_needs_the_direct_method(tmp_path, cube, capsys):
+    save_mesh(cube, tmp_path / "cube.glb")
+    status = main(
+        ["downsample", str(tmp_path / "cube.glb"), "-o", str(tmp_path / "small.glb"),
+         "--method", "lanczos", "--uv", "repack"]
+    )  # fmt: skip
+    assert status == 2
+    assert "--uv repack: only the direct method repacks UV charts" in capsys.readouterr().err
+
+
+def test_repack_refuses_the_soft_renderer(cube):
+    soft = MethodOptions(device="cpu", steps=1, settings={"uv": "repack", "optimize": {
+        "training_renderer": "soft"}})  # fmt: skip
+    with pytest.raises(GeoscalerError, match="exact renderer only"):
+        run_method("direct", cube, 4, soft)
