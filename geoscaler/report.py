@@ -301,5 +301,32 @@ def format_report(document: dict[str, Any]) -> str:
     else:
         lines.append(f"{document['seconds']:.1f} s for the whole job")
     lines.extend(_validation_lines(document["method"], details))
+    lines.extend(_layout_lines(document["method"], details))
     lines.extend(_maps_lines(document))
     return "\n".join(lines)
+
+
+def _layout_lines(method: str, details: dict[str, Any]) -> list[str]:
+    """What ``--uv repack`` / ``auto`` did with the UV layout (nothing for ``keep``)."""
+    layout = details.get("layout")
+    if not layout:
+        return []
+    used = details.get("layout_used", "keep")
+    line = f"UV layout ({details.get('uv')}): "
+    if used == "repack" and details.get("shipped", method) == method:
+        line += (
+            f"{layout['charts']} charts repacked, texel density x{layout['k']:.2f} where the "
+            f"views look (x{layout['k_area']:.2f} by UV area), padding {layout['padding_texels']} "
+            "texels; new UVs written, every map of those materials re-baked"
+        )
+    else:
+        line += "the mesh's own layout kept"
+        if details.get("start_psnr_training_views"):
+            starts = details["start_psnr_training_views"]
+            line += (
+                f" (its start rendered {starts['keep']:.2f} dB on training views, the "
+                f"repacked one's {starts['repack']:.2f} dB)"
+            )
+    lines = [line]
+    lines += [f"  {name}: layout kept, {reason}" for name, reason in layout["kept"].items()]
+    return lines

@@ -140,3 +140,23 @@ def test_repack_refuses_the_soft_renderer(cube):
         "training_renderer": "soft"}})  # fmt: skip
     with pytest.raises(GeoscalerError, match="exact renderer only"):
         run_method("direct", cube, 4, soft)
+
+
+def test_the_report_says_what_happened_to_the_layout():
+    from geoscaler.report import _layout_lines
+
+    layout = {"charts": 6, "k": 2.1, "k_area": 1.9, "padding_texels": 2, "kept": {"b": "why"}}
+    repacked = {"uv": "repack", "layout": layout, "layout_used": "repack", "shipped": "direct"}
+    assert _layout_lines("direct", repacked) == [
+        "UV layout (repack): 6 charts repacked, texel density x2.10 where the views look "
+        "(x1.90 by UV area), padding 2 texels; new UVs written, every map of those materials "
+        "re-baked",
+        "  b: layout kept, why",
+    ]
+    starts = {"keep": 30.0, "repack": 29.5}
+    kept = {**repacked, "uv": "auto", "layout_used": "keep", "start_psnr_training_views": starts}
+    assert _layout_lines("direct", kept)[0] == (
+        "UV layout (auto): the mesh's own layout kept (its start rendered 30.00 dB on training "
+        "views, the repacked one's 29.50 dB)"
+    )
+    assert _layout_lines("direct", {"uv": "keep"}) == []
