@@ -18,6 +18,7 @@ from imgui_bundle import ImVec2, ImVec4, imgui, implot
 from geoscaler.methods import is_learned, method_names
 from geoscaler.metrics import psnr_fg, ssim_fg
 from geoscaler.protocol import VIEWS
+from geoscaler.uvmodes import UV_MODES
 
 from .gl_renderer import use_screen
 from .training import SSIM_VIEWS, TrainingSettings, TrainingState
@@ -138,6 +139,14 @@ class OptimisePanel:
                 "what the method trains through: exact (as a GPU shows it) or soft (the "
                 "paper's soft rasteriser); validation is always exact"
             )
+            if settings.method == "direct":
+                layouts = list(UV_MODES)
+                _, index = imgui.combo("UV layout", layouts.index(settings.uv), layouts)
+                settings.uv = layouts[index]
+                imgui.set_item_tooltip(
+                    "keep the mesh's UVs, repack its charts by the texels the views ask of "
+                    "them (every map re-baked), or auto (the layout whose start renders better)"
+                )
             imgui.text_disabled(run_summary(settings))
             evaluation = settings.evaluation
             count = len(evaluation.view_indices)
@@ -337,6 +346,15 @@ def column_labels(texts: Sequence[str], width: float) -> None:
     imgui.dummy(ImVec2(len(texts) * (width + spacing), height))
 
 
+def relaid(app: App) -> bool:
+    """The candidate is in a repacked layout (``--uv repack`` or ``auto``), not a warp."""
+    progress, training = getattr(app, "progress", None), getattr(app, "training", None)
+    result = None if progress is None or progress.result is None else progress.result.result
+    if result is not None:
+        return result.layout is not None
+    return training is not None and training.settings.uv != "keep"
+
+
 class UVPanel:
     """Original and new texture side by side with chart outlines; a warp grid and magnitude
     heatmap for methods that move UVs."""
@@ -371,10 +389,13 @@ class UVPanel:
         outline = [(self.outlines, OUTLINE_COLOUR)]
         self.pictures[0].draw(session.original.textures[m], outline)
         layers = list(outline)
+        if session.candidate_uvs is not None:  # the charts where the candidate's UVs put them
+            moved = replace(session.mesh, uvs=np.asarray(session.candidate_uvs, np.float32))
+            layers = [(chart_outlines(moved, m), OUTLINE_COLOUR)]
         if self.warp_texture is not None:
             self.warp_texture.release()
             self.warp_texture = None
-        if session.candidate_uvs is not None:
+        if session.candidate_uvs is not None and not relaid(app):
             displacement, covered = warp_field(session.mesh, session.candidate_uvs)
             layers.append((warp_grid(displacement, covered), GRID_COLOUR))
             texture = session.candidate_textures[m]
@@ -395,7 +416,7 @@ class UVPanel:
             changed, self.material = imgui.combo("material", self.material, materials)
             if changed:
                 self.outlines = None
-        count = 3 if app.session.candidate_uvs is not None else 2
+        count = 3 if app.session.candidate_uvs is not None and not relaid(app) else 2
         width = imgui.get_content_region_avail().x
         height = imgui.get_content_region_avail().y - imgui.get_text_line_height_with_spacing()
         side = max(min((width - 8 * count) / count, height), 32)

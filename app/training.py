@@ -80,6 +80,7 @@ class TrainingSettings:
         optimize: ``OptimizeConfig`` overrides for learned methods (tests use a small pool).
         renderer: what learned methods train through: ``"exact"`` or ``"soft"`` (the paper's
             soft rasteriser); validation is exact either way.
+        uv: ``direct``'s UV layout: ``"keep"``, ``"repack"`` or ``"auto"`` (``--uv``).
     """
 
     method: str = "direct"
@@ -89,6 +90,7 @@ class TrainingSettings:
     evaluation: Evaluation = PROTOCOL_EVALUATION
     optimize: dict[str, Any] = field(default_factory=dict)
     renderer: str = "exact"
+    uv: str = "keep"
 
     def step_limit(self) -> int | None:
         """The steps the run will stop at (unless its time budget ends it first); None when
@@ -147,7 +149,9 @@ class Training:
         loop = dict(settings.optimize)
         if settings.renderer != "exact":
             loop["training_renderer"] = settings.renderer
-        extra = {"optimize": loop} if loop else {}
+        extra: dict[str, Any] = {"optimize": loop} if loop else {}
+        if settings.uv != "keep" and settings.method == "direct":
+            extra["uv"] = settings.uv
         # No default budget here: None is the user's "no limit". A filter has no budget (the
         # field is not shown for it), as the CLI gives it none unless asked.
         budget = settings.time_budget if is_learned(settings.method) else None

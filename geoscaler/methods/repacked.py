@@ -161,12 +161,32 @@ def repacked_direct(
     if choice == "keep":
         context = replace(context, validation=validation)
         return fit(mesh, rule, renderer, keep_start, config, context, started, details=facts)
-    context = replace(context, validation=LayoutValidation(validation, relaid))
+    context = replace(
+        context,
+        validation=LayoutValidation(validation, relaid),
+        on_event=_with_layout_uvs(context.on_event, relaid.uvs),
+    )
     result = fit(mesh, rule, relaid, layout_start, config, context, started, details=facts)
     result.uvs = atlas.uvs.copy()
     result.layout = atlas
     result.textures = _with_alpha(result.textures, baked)
     return result
+
+
+def _with_layout_uvs(on_event: Any, uvs: torch.Tensor) -> Any:
+    """``on_event`` whose events' live candidates carry the new layout's UVs (the loop's model
+    renders on its renderer's own UVs and says None), so an observer such as the app shows
+    them as they are."""
+    if on_event is None:
+        return None
+
+    def forward(event: Any) -> None:
+        if event.candidate is not None:
+            inner = event.candidate
+            event = replace(event, candidate=lambda: (inner()[0], uvs.detach().clone()))
+        on_event(event)
+
+    return forward
 
 
 def _training_psnr(views: ViewSet, renderer: Renderer, model: Any, sizes: list) -> float:
