@@ -26,6 +26,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from geoscaler.bench import find_meshes
 from geoscaler.io import load_mesh
 from geoscaler.job import compare_mesh
@@ -35,6 +37,7 @@ from geoscaler.methods.learned import loop_config
 from geoscaler.methods.registry import get_method, output_sizes_for, register
 from geoscaler.methods.repacked import baked_maps, plan_layout
 from geoscaler.render import Renderer
+from geoscaler.sizes import SizeRule
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 METHODS = ["bicubic", "direct", "bake", "repack"]
@@ -134,6 +137,29 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def layout_figure(entry, scale: int, out: Path, device: str) -> Path:
+    """``out/repack_<mesh>_x<scale>.png``: the reference map and the bake into the new layout
+    at the output size, side by side (each 512 pixels square, nearest neighbour), chart
+    outlines not drawn: what the texels hold is the point."""
+    from PIL import Image
+
+    mesh = load_mesh(entry.path)
+    renderer = Renderer(mesh, device)
+    rule = SizeRule(scale=scale)
+    result = bake_alone(mesh, rule, MethodOptions(device=device), RunContext(renderer))
+    original = renderer.reference_maps()[0][..., :3]
+    panels = [Image.fromarray(np.ascontiguousarray(t)).resize((512, 512), Image.NEAREST)
+              for t in (original, result.textures[0][..., :3])]  # fmt: skip
+    figure = Image.new("RGB", (1032, 512), (255, 255, 255))
+    figure.paste(panels[0], (0, 0))
+    figure.paste(panels[1], (520, 0))
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"repack_{entry.name}_x{scale}.png"
+    figure.save(path)
+    print(f"{path}: k {result.details.get('layout', {}).get('k')}", file=sys.stderr)
+    return path
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("paths", nargs="*", type=Path)
@@ -142,12 +168,19 @@ def main() -> int:
     parser.add_argument("--time-budget", type=float, default=60.0)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--json", type=Path)
+    parser.add_argument(
+        "--figures", type=Path, help="only write the reference and new-layout bake side by side"
+    )
     args = parser.parse_args()
     paths = args.paths or [DATA]
     if not any(p.exists() for p in paths):
         print(f"no meshes at {', '.join(map(str, paths))}: skipped", file=sys.stderr)
         return 0
     register_methods()
+    if args.figures:
+        for entry in find_meshes([p for p in paths if p.exists()]):
+            layout_figure(entry, args.scale[0], args.figures, args.device)
+        return 0
     rows = []
     for path in find_meshes([p for p in paths if p.exists()]):
         rows.extend(mesh_rows(path, args.scale, args.distance, args.time_budget, args.device))
