@@ -18,6 +18,7 @@ candidates are ranked by how far they fall below it on their worst set, then by 
 
 from __future__ import annotations
 
+import hashlib
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -29,7 +30,7 @@ from geoscaler.cameras import Camera, fibonacci_directions, spread_order, view_s
 from geoscaler.metrics import evaluate, mean_metrics, psnr_fg
 from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, VALIDATION_DISTANCE
 from geoscaler.render import Renderer
-from geoscaler.texture import texture_to_linear
+from geoscaler.texture import linear_to_texture, texture_to_linear, to_rgb
 from geoscaler.views import ViewCache, ViewSet
 
 GUARD_VIEWS = 12
@@ -79,7 +80,7 @@ class Validation:
         baselines: filter name -> its 8-bit output textures, scored once the sets are frozen.
         scorings_after: full-metric scorings of Q's frozen views the caller will run after
             the method (a downsampling job's report: the result and each baseline); the loop
-            keeps time for them under a budget.
+            keeps time for them under a budget (validated textures are not rendered again).
 
     Attributes:
         sets: set name -> a :class:`ViewCache` of its views with the taps of ``sizes``.
@@ -102,8 +103,9 @@ class Validation:
         self.counts: dict[str, int] | None = None
         self._baseline_scores: dict[str, Scores] | None = None
         self._view_seconds = 0.0  # the costliest view cached so far
-        self._render_seconds = 0.0  # a candidate's render in one view, measured once
-        self._metric_seconds = 0.0  # the protocol metrics of one view, measured once
+        self._render_seconds = 0.0  # a candidate's render in one view, as last measured
+        self._metric_seconds = 0.0  # the protocol metrics of one view, as last measured
+        self._q_metrics: dict[bytes, dict[str, float]] = {}  # validated candidates' Q metrics
 
     @property
     def frozen(self) -> bool:
@@ -160,6 +162,10 @@ class Validation:
     def psnr(self, textures: Sequence[torch.Tensor | None], uvs: torch.Tensor | None) -> Scores:
         """Mean PSNR-fg of a candidate per set over its frozen views.
 
+        On Q all the protocol metrics are computed from the same renders and kept, so that
+        :meth:`score` of the candidate's 8-bit textures on Q (a report's row) renders nothing
+        again.
+
         Args:
             textures: per material the ``(h, w, 3)`` linear texture as it ships (8-bit
                 quantised) or None.
@@ -167,13 +173,28 @@ class Validation:
         """
         self.freeze()
         scores = {}
+        render_seconds = metric_seconds = 0.0
         for name, cache in self.sets.items():
             values = []
             for view in range(self.counts[name]):
                 reference, foreground = cache.views.reference(view)
+                started = time.perf_counter()
                 image = cache.render(view, textures, uvs)
-                values.append(psnr_fg(image[None], reference[None], foreground[None]))
+                rendered = time.perf_counter()
+                if name == "Q":
+                    values.append(evaluate(image[None], reference[None], foreground[None]))
+                    metric_seconds += time.perf_counter() - rendered
+                else:
+                    values.append(psnr_fg(image[None], reference[None], foreground[None]))
+                render_seconds += rendered - started
+            if name == "Q":
+                metrics = {k: torch.cat([v[k] for v in values]) for k in values[0]}
+                self._q_metrics[_fingerprint(_codes(textures), uvs)] = mean_metrics(metrics)
+                values = [metrics["psnr_fg"]]
             scores[name] = float(torch.cat(values).nanmean())  # nan: no foreground
+        # the unit costs follow the machine: what this validation took, not the first probe
+        self._render_seconds = render_seconds / self.num_views
+        self._metric_seconds = metric_seconds / max(self.counts["Q"], 1)
         return scores
 
     def score(
@@ -183,12 +204,17 @@ class Validation:
         sets: Sequence[str] | None = None,
     ) -> dict[str, dict[str, float]]:
         """Set name -> mean protocol metrics of 8-bit textures (and UVs) over its frozen views,
-        for the ``sets`` named (all by default)."""
+        for the ``sets`` named (all by default). On Q, textures validated before (a learned
+        method's best, the baselines) are not rendered again: :meth:`psnr` kept their metrics."""
         self.freeze()
-        return {
-            name: mean_metrics(self.sets[name].score(textures, uvs, self.counts[name]))
-            for name in (self.sets if sets is None else sets)
-        }
+        scores = {}
+        for name in self.sets if sets is None else sets:
+            colours = [None if t is None else to_rgb(t) for t in textures]  # what renders
+            validated = self._q_metrics.get(_fingerprint(colours, uvs)) if name == "Q" else None
+            scores[name] = validated or mean_metrics(
+                self.sets[name].score(textures, uvs, self.counts[name])
+            )
+        return scores
 
     def baseline_scores(self) -> dict[str, Scores]:
         """Baseline name -> its :meth:`psnr` (scored once, after the sets are frozen)."""
@@ -224,14 +250,16 @@ class Validation:
         return self.shortfall(scores), scores["Q"]
 
     def seconds_needed(self, validations: int, caching: bool) -> float:
-        """An estimate of the seconds to finish: ``validations`` candidate validations, the
-        baselines' if not yet scored, the caller's scorings after, and (``caching``) the views
+        """An estimate of the seconds to finish: ``validations`` candidate validations (a
+        render in every view, the metrics in Q's), the baselines' if not yet scored, the
+        caller's scorings after (counted as one more computation of Q's metrics: they reuse
+        the validation's renders, see :meth:`score`), and (``caching``) the views
         :meth:`freeze` must still cache; 0 before any view is cached."""
         if self._baseline_scores is None:
             validations += len(self.baselines)
         q_views = self.counts["Q"] if self.counts else len(self.sets["Q"])
         seconds = self.num_views * validations * self._render_seconds
-        seconds += q_views * self.scorings_after * (self._render_seconds + self._metric_seconds)
+        seconds += q_views * (validations + self.scorings_after) * self._metric_seconds
         if caching and not self.frozen:
             missing = (max(MIN_FROZEN.get(n, 1) - len(c), 0) for n, c in self.sets.items())
             seconds += self._view_seconds * sum(missing)
@@ -239,7 +267,8 @@ class Validation:
 
     @torch.no_grad()
     def _measure(self, cache: ViewCache) -> None:
-        """Time a candidate's render and the protocol metrics in a cached view, once."""
+        """Time a candidate's render and the protocol metrics in the first cached view: the
+        unit costs until the first validation measures them again."""
         device = cache.renderer.device
         probe = [None if s is None else torch.zeros(*s, 3, device=device) for s in self.sizes]
         started = time.perf_counter()
@@ -249,6 +278,24 @@ class Validation:
         started = time.perf_counter()
         evaluate(image[None], reference[None], foreground[None])
         self._metric_seconds = time.perf_counter() - started
+
+
+def _codes(textures: Sequence[torch.Tensor | None]) -> list[np.ndarray | None]:
+    """8-bit quantised linear textures as the 8-bit sRGB codes they ship as."""
+    return [None if t is None else linear_to_texture(t) for t in textures]
+
+
+def _fingerprint(
+    textures: Sequence[np.ndarray | None], uvs: torch.Tensor | np.ndarray | None
+) -> bytes:
+    """A digest of 8-bit textures (and UVs): equal digests, equal candidates."""
+    digest = hashlib.blake2b(digest_size=20)
+    for texture in textures:
+        digest.update(b"-" if texture is None else np.ascontiguousarray(texture).tobytes())
+    if uvs is not None:
+        uvs = uvs.detach().cpu().numpy() if isinstance(uvs, torch.Tensor) else uvs
+        digest.update(np.ascontiguousarray(uvs, dtype=np.float32).tobytes())
+    return digest.digest()
 
 
 class Best:

@@ -8,9 +8,11 @@ import pytest
 
 from geoscaler.cameras import fibonacci_directions, spread_order
 from geoscaler.filters import bicubic, lanczos, output_sizes, reference_textures
+from geoscaler.metrics import mean_metrics
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, Evaluation
 from geoscaler.render import Renderer
+from geoscaler.texture import texture_to_linear
 from geoscaler.validation import GUARD_VIEWS, Validation, guard_cameras, validation_view_sets
 
 
@@ -94,7 +96,42 @@ def test_the_budget_counts_the_validations_owed_in_views(small):
     validation.cache_next()
     # What was measured on the first view, set to round figures to check the arithmetic:
     validation._render_seconds, validation._metric_seconds, validation._view_seconds = 1, 3, 10
-    # 1 view now; 1 own validation + 1 baseline's = 2 renders of it; 2 scorings after on Q's
-    # 1 view at 1 + 3; while not frozen, freezing must still cache 2 + 1 + 1 views.
-    assert validation.seconds_needed(1, caching=False) == 1 * 2 * 1 + 1 * 2 * 4
-    assert validation.seconds_needed(1, caching=True) == 10 + 4 * 10
+    # 1 view now (Q's); 1 own validation + 1 baseline's = 2 renders of it at 1, and Q's metrics
+    # at 3 for each of them and for the 2 scorings after (which reuse the renders); while not
+    # frozen, freezing must still cache 2 + 1 + 1 views.
+    assert validation.seconds_needed(1, caching=False) == 1 * 2 * 1 + 1 * (2 + 2) * 3
+    assert validation.seconds_needed(1, caching=True) == 14 + 4 * 10
+
+
+def test_a_validated_candidates_q_row_reuses_its_renders_and_equals_a_fresh_scoring(small):
+    mesh, _ = small
+    validation = _validation(small)
+    validation.freeze()
+    shipped = [lanczos(t, 4) for t in reference_textures(mesh)]  # (16, 16, 3) uint8
+    with_alpha = [np.dstack([t, np.full(t.shape[:2], 7, np.uint8)]) for t in shipped]
+    validation.psnr([texture_to_linear(t) for t in shipped], None)
+    q = validation.sets["Q"]
+    fresh = mean_metrics(q.score(shipped, None, validation.counts["Q"]))
+
+    def no_render(*args, **kwargs):
+        raise AssertionError("a validated candidate was rendered again")
+
+    q.render = no_render
+    row = validation.score(with_alpha, None, ["Q"])["Q"]  # alpha does not render
+    assert row.keys() == fresh.keys()
+    assert row == pytest.approx(fresh, rel=0, abs=1e-5)  # per-view vs batched float sums
+    other = [bicubic(t, 4) for t in reference_textures(mesh)]  # never validated: rendered
+    with pytest.raises(AssertionError, match="rendered again"):
+        validation.score(other, None, ["Q"])
+
+
+def test_each_validation_measures_the_unit_costs_again(small, monkeypatch):
+    mesh, _ = small
+    validation = _validation(small)
+    validation.freeze()
+    validation._render_seconds = validation._metric_seconds = 100.0  # a slow first probe
+    ticks = iter(range(10_000))
+    monkeypatch.setattr("geoscaler.validation.time.perf_counter", lambda: float(next(ticks)))
+    validation.psnr([texture_to_linear(lanczos(t, 4)) for t in reference_textures(mesh)], None)
+    # a clock that ticks once a call: every render and every Q metric took one "second"
+    assert (validation._render_seconds, validation._metric_seconds) == (1.0, 1.0)
