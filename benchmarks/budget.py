@@ -50,6 +50,7 @@ def run_downsample(mesh: Path, scale: int, budget: float, busy: bool, out: Path)
     command = [sys.executable, "-m", "geoscaler.cli", "downsample", str(mesh), "--scale",
                str(scale), "--time-budget", str(budget), "-o", str(output), "--report",
                str(report), "--force"]  # fmt: skip
+    load_before = os.getloadavg()[0]  # the 1-minute load average: what else was running
     neighbour = subprocess.Popen([sys.executable, "-c", BUSY_LOOP]) if busy else None
     try:
         started = time.perf_counter()
@@ -64,6 +65,7 @@ def run_downsample(mesh: Path, scale: int, budget: float, busy: bool, out: Path)
     details = json.loads(report.read_text())["details"]
     return {
         "wall_s": round(wall, 2),
+        "load_before": round(load_before, 2),
         "first_step_s": details.get("first_step_after_start"),
         "steps": details.get("steps"),
         "shipped": details.get("shipped"),
