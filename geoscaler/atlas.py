@@ -41,8 +41,11 @@ PACKER_MARGIN = 1
 """Texels of padding asked of xatlas beyond the plan: its own padding is measured on its
 conservative raster of the charts it stretched, and left charts one texel closer than asked
 (stool, sofa) by the guard's measure, :func:`padding_violations`."""
-MIN_PADDING, MAX_PADDING = 2, 16
-"""Bounds of the texels kept empty between charts (:func:`padding_for`)."""
+MIN_PADDING, MAX_PADDING = 4, 16
+"""Bounds of the texels kept empty between charts (:func:`padding_for`). At least 4: on the
+banana at 4x (10 views per set, the bake alone) 2 texels gave 49.29 / 50.70 dB PSNR-fg at
+2.4 / 4.0, 4 texels 49.51 / 52.60 (bicubic 48.30 / 53.48): far views read coarse levels
+across charts; bob lost 0.07 dB at 2.4."""
 
 
 class AtlasError(PackingError):

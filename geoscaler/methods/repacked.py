@@ -119,7 +119,10 @@ def repacked_direct(
     start_model: Any,
     defaults: dict,
 ) -> MethodResult:
-    """``direct`` in a new layout (``--uv repack``), or ``--uv auto``'s choice of layouts.
+    """``direct`` in a new layout (``--uv repack``), or ``--uv auto``'s choice of layouts:
+    the new one where its start (the bake) renders better than the own layout's (Lanczos) on
+    the planning training views, on all of them and on their farther half (far views read
+    coarse mip levels across charts; the job's floor guards them too).
 
     Args:
         start_model: ``(mesh, rule, renderer, starts) -> TexelModel`` making free texels from
@@ -146,12 +149,16 @@ def repacked_direct(
     choice = "repack" if atlas.moved else "keep"
     facts: dict[str, Any] = {"uv": mode, "layout": atlas.facts, "auto_choice": "keep"}
     if atlas.moved:  # what auto decides on (repack records it too, for comparison)
-        scores = {
-            "keep": _training_psnr(footprint_views, renderer, keep_start, sizes),
-            "repack": _training_psnr(footprint_views, relaid, layout_start, sizes),
-        }
+        keep = _training_psnr(footprint_views, renderer, keep_start, sizes)
+        layout = _training_psnr(footprint_views, relaid, layout_start, sizes)
+        distances = np.array([camera.distance for camera in footprint_views.cameras])
+        far = distances >= np.median(distances)
+        scores = {"keep": float(keep.mean()), "repack": float(layout.mean())}
+        far_scores = {"keep": float(keep[far].mean()), "repack": float(layout[far].mean())}
         facts["start_psnr_training_views"] = {k: round(v, 4) for k, v in scores.items()}
-        facts["auto_choice"] = max(scores, key=scores.get)
+        facts["start_psnr_farther_half"] = {k: round(v, 4) for k, v in far_scores.items()}
+        better = all(s["repack"] > s["keep"] for s in (scores, far_scores))
+        facts["auto_choice"] = "repack" if better else "keep"
         if mode == "auto":
             choice = facts["auto_choice"]
     facts["layout_used"] = choice
@@ -189,8 +196,9 @@ def _with_layout_uvs(on_event: Any, uvs: torch.Tensor) -> Any:
     return forward
 
 
-def _training_psnr(views: ViewSet, renderer: Renderer, model: Any, sizes: list) -> float:
-    """Mean PSNR-fg of a model's start on training views (never the validation's)."""
+def _training_psnr(views: ViewSet, renderer: Renderer, model: Any, sizes: list) -> np.ndarray:
+    """``(N,)`` PSNR-fg of a model's start in each of some training views (never the
+    validation's)."""
     cache = ViewCache(views, sizes, True, renderer)
     textures, _ = model.candidate()
     with torch.no_grad():
@@ -198,7 +206,7 @@ def _training_psnr(views: ViewSet, renderer: Renderer, model: Any, sizes: list) 
             psnr_fg(cache.render(i, textures, None)[None], *[t[None] for t in views.reference(i)])
             for i in range(len(views))
         ]
-    return float(torch.cat(values).nanmean())
+    return torch.cat(values).cpu().numpy().astype(np.float64)
 
 
 def _with_alpha(
