@@ -165,9 +165,10 @@ def repacked_direct(
     validation = context.validation
     if validation is None:
         validation = Validation(validation_view_sets(renderer), sizes)
-    if choice == "keep":
+    if choice == "keep":  # the planning views' G-buffers serve the training pool too
         context = replace(context, validation=validation)
-        return fit(mesh, rule, renderer, keep_start, config, context, started, details=facts)
+        own = renderer.relaid(mesh.uvs, memo)
+        return fit(mesh, rule, own, keep_start, config, context, started, details=facts)
     context = replace(
         context,
         validation=LayoutValidation(validation, relaid),
