@@ -319,6 +319,8 @@ def _layout_lines(method: str, details: dict[str, Any]) -> list[str]:
             f"views look (x{layout['k_area']:.2f} by UV area), padding {layout['padding_texels']} "
             "texels; new UVs written, every map of those materials re-baked"
         )
+    elif used == "repack":
+        line += f"the repacked result did not ship ({details.get('shipped')} did, on the own UVs)"
     else:
         line += "the mesh's own layout kept"
         if details.get("start_psnr_training_views"):

@@ -161,4 +161,8 @@ def test_the_report_says_what_happened_to_the_layout():
         "UV layout (auto): the mesh's own layout kept (its start rendered 30.00 dB on training "
         "views, the repacked one's 29.50 dB)"
     )
+    floored = {**repacked, "shipped": "lanczos"}
+    assert _layout_lines("direct", floored)[0] == (
+        "UV layout (repack): the repacked result did not ship (lanczos did, on the own UVs)"
+    )
     assert _layout_lines("direct", {"uv": "keep"}) == []
