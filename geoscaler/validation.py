@@ -207,9 +207,9 @@ class Validation:
         for the ``sets`` named (all by default). On Q, textures validated before (a learned
         method's best, the baselines) are not rendered again: :meth:`psnr` kept their metrics."""
         self.freeze()
+        colours = [None if t is None else to_rgb(t) for t in textures]  # what renders
         scores = {}
         for name in self.sets if sets is None else sets:
-            colours = [None if t is None else to_rgb(t) for t in textures]  # what renders
             validated = self._q_metrics.get(_fingerprint(colours, uvs)) if name == "Q" else None
             scores[name] = validated or mean_metrics(
                 self.sets[name].score(textures, uvs, self.counts[name])
