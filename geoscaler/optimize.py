@@ -436,8 +436,7 @@ def optimize(
     best = _Best(validation)
     deadline = None if config.time_budget is None else start + config.time_budget
 
-    def candidate() -> Candidate:
-        return _detached(model)
+    candidate = functools.partial(_detached, model)  # the current state, on request
 
     def offer(scores: dict[str, float], finished: Candidate, step: int) -> bool:
         improved = best.offer(scores, finished, step)
