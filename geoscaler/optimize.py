@@ -330,8 +330,10 @@ class _Caching:
             return self._cache_pool_view() or self.validation.cache_next()
         return self.validation.cache_next() or self._cache_pool_view()
 
-    def until_trainable(self) -> None:
-        """Cache the training views the first step needs."""
+    def until_trainable(self) -> float:
+        """Cache the training views the first step needs; returns the seconds that took, the
+        loop's estimate of its first step (which renders and differentiates as many views)."""
+        began = time.perf_counter()
         needed = min(self.config.views_per_step, len(self.pool.cameras))
         while len(self.pool) < needed and self._cache_pool_view():
             elapsed = time.perf_counter() - self.start
@@ -340,6 +342,7 @@ class _Caching:
                     "caching", 0, self.config.steps, elapsed, done=len(self.pool), total=needed
                 )
             )
+        return time.perf_counter() - began
 
     def after_step(self) -> None:
         """Cache :data:`CACHED_PER_STEP` views; past the caching deadline, :meth:`close`."""
@@ -429,7 +432,7 @@ def optimize(
         return [None if m is None else m.to(renderer.device) for m in masks]
 
     caching = _Caching(train, validation, config, start, emit)
-    caching.until_trainable()
+    step_seconds = caching.until_trainable()  # until a step is timed, its estimate
     optimizer = AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     generator = torch.Generator().manual_seed(config.seed)
     start_state = _detached(model)
@@ -474,7 +477,7 @@ def optimize(
 
     history: list[dict] = []
     step, loss_value, stopped_by = 0, math.nan, "steps"
-    validated_step, step_seconds, first_step = -1, 0.0, math.nan
+    validated_step, first_step = -1, math.nan
     loop_start = time.perf_counter()
     while step < config.steps:
         controller.wait_while_paused()

@@ -29,7 +29,6 @@ def downsample_and_report(
     A first Ctrl-C stops the optimisation and the best result so far is still written; a
     second raises KeyboardInterrupt. Returns ``(Downsampled, report document)``.
     """
-    start = time.perf_counter()
     controller = Controller()
     renderer = Renderer(job.mesh, job.options.device, product_evaluation(evaluation))
     bar = DownsampleProgress(progress, is_learned(job.method))
@@ -38,7 +37,7 @@ def downsample_and_report(
             done, written = run_job(job, renderer, bar, controller)
             bar.close()
             try:
-                document = report_document(job, done, time.perf_counter() - start, written)
+                document = report_document(job, done, time.perf_counter() - job.started_at, written)
                 if job.report is not None:
                     text = dumps(document) + "\n"
                     write_atomically(job.report, lambda tmp: tmp.write_text(text))

@@ -1,6 +1,7 @@
 """The optimisation loop and method `direct` on a small procedural mesh."""
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -315,4 +316,29 @@ def test_the_loop_stops_when_what_must_follow_it_would_overrun_the_budget(scene)
     mesh, renderer, views = scene
     validation = _Costly(views, output_sizes(mesh, SCALE))
     result = optimize(renderer, lanczos_model(mesh), small_config(time_budget=600.0), validation)
+    assert result.steps == 0 and result.stopped_by == "time budget" and result.best_step == 0
+
+
+class _Free(Validation):
+    """A validation that costs nothing to finish (only the first step's cost matters)."""
+
+    def seconds_needed(self, validations, caching):
+        return 0.0
+
+
+def test_a_first_step_that_cannot_fit_in_the_budget_is_not_started(scene, monkeypatch):
+    # caching a view takes 0.25 s, so the 4 views of the first step take 1 s: the loop takes
+    # that for the first step's cost too, and 1 + 1 s do not fit in a 1.6 s budget
+    mesh, renderer, views = scene
+    slow = Renderer(mesh, "cpu", renderer.evaluation)
+    cached_view = slow.cached_view
+
+    def slow_view(camera):
+        time.sleep(0.25)
+        return cached_view(camera)
+
+    monkeypatch.setattr(slow, "cached_view", slow_view)
+    validation = _Free(views, output_sizes(mesh, SCALE))
+    result = optimize(slow, lanczos_model(mesh), small_config(time_budget=1.6), validation)
+    assert result.training_views == 4
     assert result.steps == 0 and result.stopped_by == "time budget" and result.best_step == 0
