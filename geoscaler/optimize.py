@@ -7,7 +7,8 @@ original alike: ``training_renderer="soft"``), compares them with renders of the
 (L2 plus a weighted 1 - SSIM on the sRGB images, foreground only), and steps AdamW with a
 warm-up and cosine decay. It validates the candidate as it ships (gutters filled, 8-bit) on
 a :class:`~geoscaler.validation.Validation` (Q and near/far guards) and keeps the best state
-that clears the filters' floor on every set. It stops at a step count, a wall-clock budget or a
+that clears the filters' floor on every set (with ``backtrack``, a candidate that validates
+worse than the best sends the model back to the best at a lower learning rate). It stops at a step count, a wall-clock budget or a
 plateau, and reports progress events that the CLI's progress bar and the desktop app consume.
 
 Views are cached while the loop trains: the first step waits for ``views_per_step`` training
@@ -71,6 +72,14 @@ class Model(Protocol):
         ...
 
 
+class Restorable(Model, Protocol):
+    """A model that can be set back to a validated candidate (what backtracking needs)."""
+
+    def restore(self, textures: Sequence[torch.Tensor | None]) -> None:
+        """Set the parameters so that the candidate's textures are ``textures`` (linear)."""
+        ...
+
+
 @dataclass
 class OptimizeConfig:
     """Settings of the loop.
@@ -84,6 +93,11 @@ class OptimizeConfig:
         lr: peak learning rate; warm-up over ``warmup_steps``, then cosine decay to 0.
         short_run_boost: at most this factor on the learning rate when the time budget allows
             fewer steps than ``steps`` (1: none; :func:`_short_run_boost`).
+        backtrack: with a factor f (< 1), a validated candidate that ranks below the best so
+            far sends the model back to the best (``Restorable.restore``), multiplies the
+            learning rate by f and validates again after ``validate_every * f`` steps; with
+            it the candidate is also validated as the validation sets freeze, so that a step
+            size that hurts is found early (None: no backtracking).
         weight_decay: AdamW weight decay.
         ssim_weight: weight of ``1 - SSIM`` beside the L2 term.
         validate_every: steps between validations on Q (the last step always validates).
@@ -101,6 +115,7 @@ class OptimizeConfig:
     distances: tuple[float, float] = TRAINING_RANGE
     lr: float = 0.02
     short_run_boost: float = 1.0
+    backtrack: float | None = None
     weight_decay: float = 0.0
     warmup_steps: int = 10
     ssim_weight: float = 0.1
@@ -198,6 +213,7 @@ class OptimizeResult:
         first_step_seconds: seconds from that start to the end of the first step (nan: none).
         training_views: training views cached; ``validation_views`` set name -> views
             validated on.
+        backtracks: times the run went back to its best candidate (``config.backtrack``).
         history: one dict per step (loss, elapsed, validation scores where validated).
     """
 
@@ -214,6 +230,7 @@ class OptimizeResult:
     first_step_seconds: float = math.nan
     training_views: int = 0
     validation_views: dict[str, int] = field(default_factory=dict)
+    backtracks: int = 0
     history: list[dict] = field(default_factory=list)
 
     @property
@@ -388,7 +405,7 @@ def optimize(
 
     Args:
         renderer: the mesh's renderer (its device is the device of the run).
-        model: the candidate's parameters.
+        model: the candidate's parameters (:class:`Restorable` with ``config.backtrack``).
         config: loop settings.
         validation: the validation sets (their views may not be cached yet) with the taps of
             the candidate's texture sizes, which the training pool's taps take too, and the
@@ -477,6 +494,7 @@ def optimize(
 
     history: list[dict] = []
     step, loss_value, stopped_by = 0, math.nan, "steps"
+    lr_scale, backtracks, check_at = 1.0, 0, -1  # check_at: a validation backtracking asks for
     validated_step, first_step = -1, math.nan
     loop_start = time.perf_counter()
     while step < config.steps:
@@ -495,8 +513,11 @@ def optimize(
             optimizer,
             views.tolist(),
             config,
-            lambda at=step: _learning_rate_factor(
-                at, _time_spent(time.perf_counter(), start, loop_start, config), config
+            lambda at=step, scale=lr_scale: (
+                scale
+                * _learning_rate_factor(
+                    at, _time_spent(time.perf_counter(), start, loop_start, config), config
+                )
             ),
             perceptual,
         )
@@ -526,12 +547,20 @@ def optimize(
             continue
         if not best.has_start:
             validate_start()
-        if step % config.validate_every == 0 or step == config.steps:
+            check_at = step if config.backtrack is not None else check_at
+        if step % config.validate_every == 0 or step == config.steps or step == check_at:
             finished = finished_candidate(model, reachable())
             scores = validate(validation, finished)
             validated_step = step
             improved = offer(scores, finished, step)
             history[-1]["validation_psnr_fg"] = scores["Q"]
+            if not improved and config.backtrack is not None and step < config.steps:
+                model.restore(best.textures)
+                optimizer = AdamW(model.parameters(), weight_decay=config.weight_decay)
+                lr_scale *= config.backtrack
+                backtracks += 1
+                check_at = step + max(round(config.validate_every * config.backtrack), 1)
+                history[-1]["backtrack"] = lr_scale
             if not improved and config.patience is not None and best.stale >= config.patience:
                 stopped_by = "plateau"
                 break
@@ -558,6 +587,7 @@ def optimize(
         first_step,
         len(train),
         dict(validation.counts or {}),
+        backtracks,
         history,
     )
 

@@ -292,6 +292,11 @@ def format_report(document: dict[str, Any]) -> str:
             f"{details.get('best_step')}), stopped by {details.get('stopped_by')}; "
             f"{document['seconds']:.1f} s for the whole job"
         )
+        if details.get("backtracks"):
+            lines.append(
+                f"{details['backtracks']} validation(s) ranked the candidate below the best so "
+                "far: each sent the texels back to the best and lowered the learning rate"
+            )
         if details["steps"] == 0 and details.get("stopped_by") == "time budget":
             lines.append(
                 f"note: the time budget ({details.get('time_budget')} s) ran out while the "

@@ -247,7 +247,7 @@ def test_a_spent_budget_validates_on_what_is_cached_and_ships_the_start(scene):
         started_at=-1e9,  # the budget ran out long ago
     )
     assert result.steps == 0 and result.stopped_by == "time budget" and result.best_step == 0
-    assert result.validation_views == {"Q": 3, "near": 1, "far": 1}  # the least it validates on
+    assert result.validation_views == {"Q": 3, "near": 2, "far": 2}  # the least it validates on
 
 
 class _Floor:
@@ -342,3 +342,34 @@ def test_a_first_step_that_cannot_fit_in_the_budget_is_not_started(scene, monkey
     result = optimize(slow, lanczos_model(mesh), small_config(time_budget=1.6), validation)
     assert result.training_views == 4
     assert result.steps == 0 and result.stopped_by == "time budget" and result.best_step == 0
+
+
+def test_restoring_texels_gives_back_the_candidate_they_came_from(scene):
+    mesh, _, _ = scene
+    model = lanczos_model(mesh)
+    (saved,), _ = model.candidate()
+    saved = saved.detach().clone()
+    with torch.no_grad():
+        model.parameters()[0].mul_(0.5)
+    model.restore([saved])
+    torch.testing.assert_close(model.candidate()[0][0], saved, atol=1e-6, rtol=0)
+
+
+def test_a_candidate_that_validates_worse_sends_the_loop_back_to_its_best_at_a_lower_rate(scene):
+    # A rate of 50 ruins the texture in a step: each validation after the start's ranks below
+    # it, sends the texels back to the start and quarters the rate, until the rate helps. The
+    # first comes as the sets freeze (after step 1), each next one 10 * 0.25 = 2 steps later.
+    result = run(scene, steps=8, lr=50.0, warmup_steps=1, backtrack=0.25)
+    backtracked = [(h["step"], h["backtrack"]) for h in result.history if "backtrack" in h]
+    assert backtracked == [(1, 0.25), (3, 0.0625), (5, 0.015625), (7, 0.00390625)]
+    assert result.backtracks == 4 and result.best_step == 8
+    start = run(scene, steps=0)  # the start, finished and validated alone
+    assert result.best_psnr > start.best_psnr
+    without = run(scene, steps=8, lr=50.0, warmup_steps=1)
+    assert without.best_step == 0  # the ruined texture never beat the start
+
+
+def test_without_backtracking_no_candidate_is_validated_as_the_sets_freeze(scene):
+    result = run(scene, steps=8, lr=50.0, warmup_steps=1)
+    validated = [h["step"] for h in result.history if "validation_psnr_fg" in h]
+    assert validated == [8] and result.backtracks == 0

@@ -63,3 +63,18 @@ def test_an_output_larger_than_its_input_is_said():
 def test_a_validation_set_that_saw_nothing_reads_n_a():
     text = format_report(document(90_000, {"Q": 30.0, "near": None, "far": None}))
     assert "PSNR-fg (Q / near / far): direct 30.00 / n/a / n/a" in text
+
+
+def test_backtracks_are_said_with_the_steps():
+    report = document(90_000, {"Q": 30.0, "near": 29.0, "far": 28.0})
+    report["details"].update(steps=98, best_step=98, stopped_by="time budget", backtracks=1)
+    lines = format_report(report).splitlines()
+    at = lines.index(
+        "direct: 98 steps (best at step 98), stopped by time budget; 12.0 s for the whole job"
+    )
+    assert lines[at + 1] == (
+        "1 validation(s) ranked the candidate below the best so far: each sent the texels back "
+        "to the best and lowered the learning rate"
+    )
+    report["details"]["backtracks"] = 0
+    assert "validation(s) ranked" not in format_report(report)

@@ -68,8 +68,8 @@ def test_views_are_cached_where_the_smallest_share_is_and_frozen_at_least_at_the
     validation.cache_next()
     validation.cache_next()
     assert [len(c) for c in validation.sets.values()] == [1, 1, 1]
-    validation.freeze()  # Q keeps 3 at least
-    assert validation.counts == {"Q": 3, "near": 1, "far": 1} and validation.num_views == 5
+    validation.freeze()  # Q keeps 3 at least, each guard 2
+    assert validation.counts == {"Q": 3, "near": 2, "far": 2} and validation.num_views == 7
     assert not validation.cache_next() and validation.counts["Q"] == 3
 
 
@@ -98,9 +98,9 @@ def test_the_budget_counts_the_validations_owed_in_views(small):
     validation._render_seconds, validation._metric_seconds, validation._view_seconds = 1, 3, 10
     # 1 view now (Q's); 1 own validation + 1 baseline's = 2 renders of it at 1, and Q's metrics
     # at 3 for each of them and for the 2 scorings after (which reuse the renders); while not
-    # frozen, freezing must still cache 2 + 1 + 1 views.
+    # frozen, freezing must still cache 2 + 2 + 2 views.
     assert validation.seconds_needed(1, caching=False) == 1 * 2 * 1 + 1 * (2 + 2) * 3
-    assert validation.seconds_needed(1, caching=True) == 14 + 4 * 10
+    assert validation.seconds_needed(1, caching=True) == 14 + 6 * 10
 
 
 def test_a_validated_candidates_q_row_reuses_its_renders_and_equals_a_fresh_scoring(small):

@@ -90,5 +90,6 @@ def fit(
         "first_step_seconds": round(result.first_step_seconds, 3),
         "training_views": result.training_views,
         "validation_views": result.validation_views,
+        "backtracks": result.backtracks,
     }
     return MethodResult(textures, uvs, details=facts)
