@@ -8,8 +8,9 @@ original alike: ``training_renderer="soft"``), compares them with renders of the
 warm-up and cosine decay. It validates the candidate as it ships (gutters filled, 8-bit) on
 a :class:`~geoscaler.validation.Validation` (Q and near/far guards) and keeps the best state
 that clears the filters' floor on every set (with ``backtrack``, a candidate that validates
-worse than the best sends the model back to the best at a lower learning rate). It stops at a step count, a wall-clock budget or a
-plateau, and reports progress events that the CLI's progress bar and the desktop app consume.
+worse than the best sends the model back to the best at a lower learning rate). It stops at a
+step count, a wall-clock budget or a plateau, and reports progress events that the CLI's
+progress bar and the desktop app consume.
 
 Views are cached while the loop trains: the first step waits for ``views_per_step`` training
 views only; the rest of the training pool and the validation views are cached between steps,
