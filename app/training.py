@@ -8,17 +8,18 @@ second, pulls the current texture (and UVs) with ``ProgressEvent.candidate``. Th
 only reads :class:`TrainingState` under its lock.
 
 On 2 cores the worker runs torch on one thread (``torch.set_num_threads(1)``, process-wide), so
-the UI thread and the GL driver keep the other core. On Linux the worker also runs at the lowest
-CPU priority (nice 19, that thread only), so that while the user drags the camera the UI, the
-GL driver's threads and the X server come first, and the worker takes what they leave; an idle
-window leaves it nearly everything. The interpreter hands the GIL over every 0.5 ms instead of
-5 ms, so the UI thread waits less for it between the worker's torch calls.
+the UI thread and the GL driver keep the other core. While the user drags the camera the worker
+holds back (:meth:`Training.user_moved`): after each step it sleeps as long as the step took,
+so the UI, the GL driver's threads and the X server get the CPU half the time. It runs at the
+priority of the app: an OS priority (it used to run at nice 19) also yields to every other busy
+process, and a busy neighbour then stopped the optimiser instead of slowing it. The
+interpreter hands the GIL over every 0.5 ms instead of 5 ms, so the UI thread waits less for
+it between the worker's torch calls.
 """
 
 from __future__ import annotations
 
 import math
-import os
 import sys
 import threading
 import time
@@ -46,24 +47,16 @@ SNAPSHOT_INTERVAL = 0.5
 """Seconds between live texture snapshots sent to the UI (each costs the worker a texture
 conversion and a mip chain, about 0.1 s for 1024 x 1024 on one core)."""
 TORCH_THREADS = 1
-WORKER_NICE = 19
 GIL_SWITCH_INTERVAL = 0.0005
 """Seconds (``sys.setswitchinterval``); with nice 19, frames orbiting while training took 44
 instead of 46 ms (two timed runs each of the lego under Xvfb)."""
+USER_MOVE_HOLD = 0.3
+"""Seconds after the camera last moved during which the worker holds back after each step."""
+MAX_HOLD = 1.0
+"""Seconds the worker sleeps at most after one step while the user moves the camera."""
 SSIM_VIEWS = 6
 """Validation views on which the worker also measures SSIM-fg at each validation (the loop
 itself validates on PSNR-fg only); a subset keeps it to about a second."""
-
-
-def lower_thread_priority(nice: int) -> None:
-    """Give the calling thread the CPU priority ``nice`` on Linux, where priorities are per
-    thread; elsewhere, or where the system refuses, the thread keeps its priority."""
-    if sys.platform != "linux":
-        return
-    try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), nice)
-    except OSError:
-        pass
 
 
 @dataclass
@@ -164,6 +157,8 @@ class Training:
         self.started = 0.0
         self.seconds = 0.0  # wall time of the whole run, set when it ends
         self._last_snapshot = 0.0
+        self._user_moved_at = -math.inf  # time.perf_counter() of the camera's last move
+        self._last_step_at = 0.0  # the worker's time.perf_counter() after its last step
 
     def start(self) -> None:
         sys.setswitchinterval(GIL_SWITCH_INTERVAL)
@@ -181,6 +176,20 @@ class Training:
     def stop(self) -> None:
         """Ask the method to stop; the best result so far is still scored and kept."""
         self.controller.stop()
+
+    def user_moved(self) -> None:
+        """The user moved the camera (UI thread): for :data:`USER_MOVE_HOLD` seconds the
+        worker sleeps after each step as long as the step took (:meth:`hold_back`)."""
+        self._user_moved_at = time.perf_counter()
+
+    def hold_back(self, now: float) -> float:
+        """Seconds the worker should sleep after a step that ended at ``now``: as long as the
+        step took (at most :data:`MAX_HOLD`) while the user moves the camera, else 0."""
+        step_seconds = now - self._last_step_at
+        held = now - self._user_moved_at <= USER_MOVE_HOLD
+        pause = min(step_seconds, MAX_HOLD) if held else 0.0
+        self._last_step_at = now + pause  # the next step starts after the pause
+        return pause
 
     @property
     def running(self) -> bool:
@@ -214,7 +223,6 @@ class Training:
 
     def _run(self) -> None:
         torch.set_num_threads(TORCH_THREADS)
-        lower_thread_priority(WORKER_NICE)
         try:
             self._set(phase="caching validation views")
             settings = self.settings
@@ -282,6 +290,8 @@ class Training:
             elif event.phase == "done":
                 state.phase = "scoring on the validation views"
         now = time.perf_counter()
+        if event.phase == "step":
+            time.sleep(self.hold_back(now))
         live = now - self._last_snapshot > SNAPSHOT_INTERVAL
         if event.candidate is None or not (live or event.phase == "validation"):
             return

@@ -234,6 +234,8 @@ class ViewsPanel:
             assert self.composer is not None
             self._view("##composed", self.composer.image)
         imgui.end()
+        if self.moving and app.training is not None:
+            app.training.user_moved()  # the worker holds back while the user drags
 
     def _toolbar(self, state: AppState) -> None:
         for index, name in enumerate(MODES):
