@@ -39,6 +39,7 @@ from geoscaler.adamw import AdamW
 from geoscaler.cameras import Camera, sample_training_cameras
 from geoscaler.losses import PerceptualTerm, view_loss
 from geoscaler.render import Renderer
+from geoscaler.schedule import Schedule
 from geoscaler.soft import SoftSettings
 from geoscaler.texture import fill_gutters, quantize_linear
 from geoscaler.uvmaps import reachable_masks
@@ -93,7 +94,7 @@ class OptimizeConfig:
         distances: camera distance range of the training views.
         lr: peak learning rate; warm-up over ``warmup_steps``, then cosine decay to 0.
         short_run_boost: at most this factor on the learning rate when the time budget allows
-            fewer steps than ``steps`` (1: none; :func:`_short_run_boost`).
+            fewer steps than ``steps`` (1: none; :meth:`Schedule.boost`).
         backtrack: with a factor f (< 1), a validated candidate that ranks below the best so
             far sends the model back to the best (``Restorable.restore``), multiplies the
             learning rate by f and validates again after ``validate_every * f`` steps; with
@@ -129,6 +130,11 @@ class OptimizeConfig:
     def __post_init__(self) -> None:
         if self.training_renderer not in ("exact", "soft"):
             raise ValueError(f"training_renderer: exact or soft, not {self.training_renderer!r}")
+
+    @property
+    def schedule(self) -> Schedule:
+        """The learning rate's schedule of these settings."""
+        return Schedule(self.steps, self.warmup_steps, self.time_budget, self.short_run_boost)
 
 
 @dataclass
@@ -436,9 +442,8 @@ def optimize(
     )
     soft = config.soft if config.training_renderer == "soft" else None
     train = training_views(renderer, cameras, validation.sizes, keeps_uvs, soft)
-    farthest = max(
-        camera.distance for views in (cameras, *_set_cameras(validation)) for camera in views
-    )
+    validating = [camera for cache in validation.sets.values() for camera in cache.views.cameras]
+    farthest = max(camera.distance for camera in (*cameras, *validating))
 
     @functools.cache
     def reachable() -> list[torch.Tensor | None]:
@@ -497,7 +502,7 @@ def optimize(
     step, loss_value, stopped_by = 0, math.nan, "steps"
     lr_scale, backtracks, check_at = 1.0, 0, -1  # check_at: a validation backtracking asks for
     validated_step, first_step = -1, math.nan
-    loop_start = time.perf_counter()
+    loop_start, schedule = time.perf_counter(), config.schedule
     while step < config.steps:
         controller.wait_while_paused()
         if controller.stopped:
@@ -516,9 +521,7 @@ def optimize(
             config,
             lambda at=step, scale=lr_scale: (
                 scale
-                * _learning_rate_factor(
-                    at, _time_spent(time.perf_counter(), start, loop_start, config), config
-                )
+                * schedule.factor(at, schedule.time_spent(time.perf_counter(), start, loop_start))
             ),
             perceptual,
         )
@@ -591,43 +594,3 @@ def optimize(
         backtracks,
         history,
     )
-
-
-def _set_cameras(validation: Validation) -> list[list[Camera]]:
-    return [cache.views.cameras for cache in validation.sets.values()]
-
-
-def _time_spent(now: float, start: float, loop_start: float, config: OptimizeConfig) -> float:
-    """Fraction of the optimisation's share of the budget used at ``now``: the share runs
-    from the first step (``loop_start``) to the budget's end (0 without a budget)."""
-    if config.time_budget is None:
-        return 0.0
-    span = start + config.time_budget - loop_start
-    return 1.0 if span <= 0 else (now - loop_start) / span
-
-
-def _learning_rate_factor(step: int, time_spent: float, config: OptimizeConfig) -> float:
-    """Linear warm-up over ``warmup_steps``, then cosine decay to 0, times the boost of a run
-    that the budget cuts short (:func:`_short_run_boost`).
-
-    The decay follows whichever runs out first, the steps or the time budget (so a budgeted
-    run ends at a low learning rate too); with a budget the schedule, and so the result, depends
-    on the machine's speed.
-    """
-    boost = _short_run_boost(step, time_spent, config)
-    if step < config.warmup_steps:
-        return boost * (step + 1) / config.warmup_steps
-    span = max(config.steps - config.warmup_steps, 1)
-    progress = max((step - config.warmup_steps) / span, time_spent)
-    return boost * 0.5 * (1 + math.cos(math.pi * min(progress, 1.0)))
-
-
-def _short_run_boost(step: int, time_spent: float, config: OptimizeConfig) -> float:
-    """``sqrt(steps / expected steps)``, at most ``short_run_boost``: Adam moves a parameter
-    by about the learning rate a step, so a run the budget allows fewer steps than
-    ``config.steps`` takes larger ones. The expected steps are those made so far over the
-    budget's share spent (1 without a budget, or before the first step is timed)."""
-    if config.short_run_boost <= 1 or time_spent <= 0 or step < 1:
-        return 1.0
-    expected = min(step / time_spent, config.steps)
-    return min(config.short_run_boost, math.sqrt(config.steps / expected))

@@ -19,7 +19,18 @@ PACKAGES = {"geoscaler": ROOT / "geoscaler", "geoscaler.app": ROOT / "app"}
 LAYERS = [
     ["errors", "protocol"],
     [""],  # the package itself (geoscaler/__init__.py)
-    ["texture", "raster", "metrics", "figures", "sizes", "devices", "adamw", "packing", "uvmodes"],
+    [
+        "texture",
+        "raster",
+        "metrics",
+        "figures",
+        "sizes",
+        "devices",
+        "adamw",
+        "schedule",
+        "packing",
+        "uvmodes",
+    ],
     ["mesh", "cameras"],
     ["filters", "io", "procedural"],
     ["render", "uvmaps", "maps", "soft"],

@@ -16,8 +16,6 @@ from geoscaler.optimize import (
     Controller,
     OptimizeConfig,
     _Best,
-    _learning_rate_factor,
-    _time_spent,
     optimize,
 )
 from geoscaler.procedural import demo_mesh
@@ -273,36 +271,6 @@ def test_without_a_candidate_that_clears_the_one_that_falls_least_below_is_kept(
     assert best.offer({"Q": 30.0, "far": 21.0}, candidate, 10)
     assert not best.offer({"Q": 33.0, "far": 20.5}, candidate, 20)
     assert (best.step, best.clears) == (10, False)
-
-
-def test_learning_rate_warms_up_then_decays_with_the_steps_or_the_time_whichever_is_further():
-    config = OptimizeConfig(steps=110, warmup_steps=10)
-    assert _learning_rate_factor(0, 0.0, config) == pytest.approx(0.1)
-    assert _learning_rate_factor(9, 0.0, config) == pytest.approx(1.0)
-    assert _learning_rate_factor(60, 0.0, config) == pytest.approx(0.5)  # half the steps
-    assert _learning_rate_factor(60, 1.0, config) == pytest.approx(0.0)  # the time is up
-    assert _learning_rate_factor(10, 0.5, config) == pytest.approx(0.5)  # half the time
-
-
-def test_a_run_the_budget_cuts_short_takes_larger_steps_up_to_the_boost():
-    config = OptimizeConfig(steps=301, warmup_steps=1, short_run_boost=2.0)
-    # 100 steps in half the time: 200 expected of 301, sqrt(301 / 200) times the rate
-    assert _learning_rate_factor(100, 0.5, config) == pytest.approx((301 / 200) ** 0.5 * 0.5)
-    # 10 steps in half the time: 20 expected, sqrt(15.05) capped at 2
-    assert _learning_rate_factor(10, 0.5, config) == pytest.approx(2.0 * 0.5)
-    # on pace for every step, without a budget (no time spent), or no boost allowed: none
-    assert _learning_rate_factor(151, 0.5, config) == pytest.approx(0.5)
-    assert _learning_rate_factor(151, 0.0, config) == pytest.approx(0.5)
-    unboosted = OptimizeConfig(steps=301, warmup_steps=1)
-    assert _learning_rate_factor(10, 0.5, unboosted) == pytest.approx(0.5)
-
-
-def test_the_schedule_spends_the_time_left_after_caching():
-    # a 60 s budget of which caching took 20 s: 10 s into the steps is a quarter of their time
-    config = OptimizeConfig(time_budget=60.0)
-    assert _time_spent(130.0, 100.0, 120.0, config) == pytest.approx(0.25)
-    assert _time_spent(161.0, 100.0, 170.0, config) == 1.0  # caching used the whole budget
-    assert _time_spent(130.0, 100.0, 120.0, OptimizeConfig()) == 0.0
 
 
 class _Costly(Validation):
