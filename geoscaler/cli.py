@@ -459,9 +459,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo = commands.add_parser(
         "demo",
         help="build the built-in demo asset and downsample it 4x (under 2 minutes on 2 cores)",
-        description="Build (or reuse) DIR/geoscaler_demo.glb, run `downsample --scale 4` on it "
+        description="Build (or reuse) DIR/geoscaler_pebble.glb, run `downsample --scale 4` on it "
         "with method direct (at most 120 steps and 75 s), print the report, and write "
-        "DIR/geoscaler_demo_x4.glb, DIR/geoscaler_demo_x4.json and DIR/demo_comparison.png "
+        "DIR/geoscaler_pebble_x4.glb, DIR/geoscaler_pebble_x4.json and DIR/demo_comparison.png "
         "(earlier demo outputs in DIR are replaced).",
     )
     demo.add_argument("--out", default=str(DEFAULT_DEMO_DIR), help="folder (default assets/)")

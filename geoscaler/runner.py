@@ -54,7 +54,9 @@ def downsample_and_report(
     return done, document
 
 
-DEMO_MESH_NAME = "geoscaler_demo.glb"
+DEMO_MESH_NAME = "geoscaler_pebble.glb"
+"""The demo asset's file: named after what it is, so that an older demo asset left in the folder
+(the cube-sphere of earlier versions, ``geoscaler_demo.glb``) is not reused for it."""
 DEMO_SCALE = 4
 DEMO_TIME_BUDGET = 75.0
 DEMO_STEPS = 120
@@ -84,8 +86,8 @@ def demo(
     """``geoscaler demo``: build (or reuse) the demo asset in ``out_dir`` and downsample it.
 
     The asset is :func:`geoscaler.procedural.scan_mesh` (a pebble with a scan's atlas), run
-    with ``direct`` and ``--uv`` :data:`DEMO_UV`. Writes ``geoscaler_demo_x4.glb``, its report
-    ``geoscaler_demo_x4.json`` and the picture ``demo_comparison.png`` (original | bicubic |
+    with ``direct`` and ``--uv`` :data:`DEMO_UV`. Writes ``geoscaler_pebble_x4.glb``, its report
+    ``geoscaler_pebble_x4.json`` and the picture ``demo_comparison.png`` (original | bicubic |
     direct on three views) into ``out_dir``, replacing earlier demo outputs. ``time_budget``
     of ``direct``: :data:`DEMO_TIME_BUDGET` by default, counted from ``started_at`` (a
     ``time.perf_counter()``; None: now). Returns the report.

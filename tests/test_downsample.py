@@ -280,22 +280,22 @@ def test_demo_builds_the_asset_and_writes_outputs(tmp_path, capsys):
     written = sorted(p.name for p in (tmp_path / "demo").iterdir())
     assert written == [
         "demo_comparison.png",
-        "geoscaler_demo.glb",
-        "geoscaler_demo_x4.glb",
-        "geoscaler_demo_x4.json",
+        "geoscaler_pebble.glb",
+        "geoscaler_pebble_x4.glb",
+        "geoscaler_pebble_x4.json",
     ]
-    report = json.loads((tmp_path / "demo" / "geoscaler_demo_x4.json").read_text())
+    report = json.loads((tmp_path / "demo" / "geoscaler_pebble_x4.json").read_text())
     assert report["protocol"] == 1 and report["method"] == "direct"
     assert report["details"]["steps"] == 0 and report["details"]["stopped_by"] == "time budget"
     assert report["details"]["uv"] == "auto"  # the scan-like atlas: repack where it starts better
     assert report["details"]["layout"]["charts"] == 31 and "auto_choice" in report["details"]
     picture = Image.open(tmp_path / "demo" / "demo_comparison.png")
     assert picture.size[0] == 3 * 256 + 2 * 4  # original | bicubic | direct
-    asset = (tmp_path / "demo" / "geoscaler_demo.glb").read_bytes()
+    asset = (tmp_path / "demo" / "geoscaler_pebble.glb").read_bytes()
     quick_demo(tmp_path / "demo")
     printed = capsys.readouterr().out
     assert "using the demo asset" in printed and "no optimisation step ran" in printed
-    assert (tmp_path / "demo" / "geoscaler_demo.glb").read_bytes() == asset
+    assert (tmp_path / "demo" / "geoscaler_pebble.glb").read_bytes() == asset
 
 
 def test_renderer_soft_trains_through_the_soft_rasteriser(glb, tmp_path):
