@@ -234,8 +234,8 @@ class ViewsPanel:
             assert self.composer is not None
             self._view("##composed", self.composer.image)
         imgui.end()
-        if self.moving and app.training is not None:
-            app.training.user_moved()  # the worker holds back while the user drags
+        if (self.moving or self.previewing) and app.training is not None:
+            app.training.user_moved()  # the camera moves: the worker holds back
 
     def _toolbar(self, state: AppState) -> None:
         for index, name in enumerate(MODES):

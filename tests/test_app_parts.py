@@ -132,7 +132,8 @@ def test_uv_pictures_draw_texture_outlines_and_warp(app_modules, small_demo):
 
 
 def finished_run(mesh, method: str, steps: int, validate_every: int, renderer: str = "exact"):
-    """The state of a small run of ``method`` on ``mesh`` (4x, 64-pixel views), run to its end."""
+    """The state of a small run of ``method`` on ``mesh`` (4x, 64-pixel views), run to its end,
+    validated every ``validate_every`` steps exactly (no backtracking, which adds validations)."""
     training = import_app_module("training")
     settings = training.TrainingSettings(
         method=method,
@@ -140,7 +141,7 @@ def finished_run(mesh, method: str, steps: int, validate_every: int, renderer: s
         steps=steps,
         time_budget=60.0,
         evaluation=ONE_SMALL_VIEW,
-        optimize={"pool_views": 2, "validate_every": validate_every},
+        optimize={"pool_views": 2, "validate_every": validate_every, "backtrack": None},
         renderer=renderer,
     )
     run = training.Training(mesh, settings)
