@@ -52,9 +52,6 @@ GIL_SWITCH_INTERVAL = 0.0005
 instead of 46 ms (two timed runs each of the lego under Xvfb)."""
 USER_MOVE_HOLD = 0.3
 """Seconds after the camera last moved during which the worker holds back after each step."""
-HOLD_FACTOR = 1.0
-"""While the user moves the camera the worker sleeps this many times as long as each step took
-(1: half the time stepping)."""
 MAX_HOLD = 1.0
 """Seconds the worker sleeps at most after one step while the user moves the camera."""
 SSIM_VIEWS = 6
@@ -190,7 +187,7 @@ class Training:
         step took (at most :data:`MAX_HOLD`) while the user moves the camera, else 0."""
         step_seconds = now - self._last_step_at
         held = now - self._user_moved_at <= USER_MOVE_HOLD
-        pause = min(HOLD_FACTOR * step_seconds, MAX_HOLD) if held else 0.0
+        pause = min(step_seconds, MAX_HOLD) if held else 0.0
         self._last_step_at = now + pause  # the next step starts after the pause
         return pause
 

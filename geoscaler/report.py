@@ -299,9 +299,9 @@ def format_report(document: dict[str, Any]) -> str:
             )
         if details["steps"] == 0 and details.get("stopped_by") == "time budget":
             lines.append(
-                f"note: the time budget ({details.get('time_budget')} s) ran out while the "
-                "views were being cached, so no optimisation step ran and the result is the "
-                "method's Lanczos start; give a larger --time-budget"
+                f"note: the time budget ({details.get('time_budget')} s) left no time for a "
+                "first step after loading and caching the views, so no optimisation step ran "
+                "and the result is the method's Lanczos start; give a larger --time-budget"
             )
     else:
         lines.append(f"{document['seconds']:.1f} s for the whole job")
