@@ -551,7 +551,8 @@ def optimize(
             continue
         if not best.has_start:
             validate_start()
-            check_at = step if config.backtrack is not None else check_at
+            if config.backtrack is not None:  # is the step size hurting already?
+                check_at = step
         if step % config.validate_every == 0 or step == config.steps or step == check_at:
             finished = finished_candidate(model, reachable())
             scores = validate(validation, finished)

@@ -273,25 +273,22 @@ def test_without_a_candidate_that_clears_the_one_that_falls_least_below_is_kept(
     assert (best.step, best.clears) == (10, False)
 
 
-class _Costly(Validation):
-    """A validation whose remaining work (validations owed, scorings after) takes 1000 s."""
+class _Costing(Validation):
+    """A validation whose remaining work (validations owed, scorings after) takes ``seconds``."""
+
+    def __init__(self, views, sizes, seconds: float):
+        super().__init__(views, sizes)
+        self.seconds = seconds
 
     def seconds_needed(self, validations, caching):
-        return 1000.0
+        return self.seconds
 
 
 def test_the_loop_stops_when_what_must_follow_it_would_overrun_the_budget(scene):
     mesh, renderer, views = scene
-    validation = _Costly(views, output_sizes(mesh, SCALE))
+    validation = _Costing(views, output_sizes(mesh, SCALE), seconds=1000.0)
     result = optimize(renderer, lanczos_model(mesh), small_config(time_budget=600.0), validation)
     assert result.steps == 0 and result.stopped_by == "time budget" and result.best_step == 0
-
-
-class _Free(Validation):
-    """A validation that costs nothing to finish (only the first step's cost matters)."""
-
-    def seconds_needed(self, validations, caching):
-        return 0.0
 
 
 def test_a_first_step_that_cannot_fit_in_the_budget_is_not_started(scene, monkeypatch):
@@ -306,7 +303,7 @@ def test_a_first_step_that_cannot_fit_in_the_budget_is_not_started(scene, monkey
         return cached_view(camera)
 
     monkeypatch.setattr(slow, "cached_view", slow_view)
-    validation = _Free(views, output_sizes(mesh, SCALE))
+    validation = _Costing(views, output_sizes(mesh, SCALE), seconds=0.0)  # the step's cost alone
     result = optimize(slow, lanczos_model(mesh), small_config(time_budget=1.6), validation)
     assert result.training_views == 4
     assert result.steps == 0 and result.stopped_by == "time budget" and result.best_step == 0
