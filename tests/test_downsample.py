@@ -61,7 +61,7 @@ def folder_bytes(folder: Path) -> dict[str, bytes]:
 
 @pytest.fixture(scope="module")
 def direct_run(glb, tmp_path_factory):
-    """One `downsample --method direct --steps 2 --report` run; what it wrote and produced."""
+    """One `downsample --method direct --steps 20 --report` run; what it wrote and produced."""
     out_dir = tmp_path_factory.mktemp("out")
     before = folder_bytes(glb.parent)
     produced = {}
@@ -75,7 +75,7 @@ def direct_run(glb, tmp_path_factory):
     with pytest.MonkeyPatch.context() as patch:  # a spy: what the job hands the writer
         patch.setattr(geoscaler.downsampling, "export", spy)
         argv = ["downsample", str(glb), "--scale", "4", "-o", str(out_dir / "small.glb")]
-        argv += ["--steps", "2", "--device", "cpu", "--report", str(out_dir / "report.json")]
+        argv += ["--steps", "20", "--device", "cpu", "--report", str(out_dir / "report.json")]
         status = main(argv)
     return {
         "status": status,
@@ -119,7 +119,7 @@ def test_report_json_has_protocol_results_and_gain(direct_run, glb):
 
 def test_steps_stop_the_loop(direct_run):
     details = direct_run["report"]["details"]
-    assert details["steps"] == 2 and details["stopped_by"] == "steps"
+    assert details["steps"] == 20 and details["stopped_by"] == "steps"
     assert details["validation_views"] == {"Q": 2, "near": 2, "far": 2}  # guards: no more than Q
 
 

@@ -13,7 +13,15 @@ from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, Evaluation
 from geoscaler.render import Renderer
 from geoscaler.texture import texture_to_linear
-from geoscaler.validation import GUARD_VIEWS, Validation, guard_cameras, validation_view_sets
+from geoscaler.validation import (
+    FLOOR_MARGIN,
+    GUARD_VIEWS,
+    Scores,
+    Validation,
+    guard_cameras,
+    paired_gap,
+    validation_view_sets,
+)
 
 
 def test_spread_order_is_a_permutation_whose_prefixes_span_the_sphere():
@@ -41,7 +49,7 @@ def test_guards_never_outnumber_q():
     quick = validation_view_sets(Renderer(mesh, "cpu", Evaluation.quick((0, 7))))
     assert {name: len(v.cameras) for name, v in quick.items()} == {"Q": 2, "near": 2, "far": 2}
     full = validation_view_sets(Renderer(mesh, "cpu"))
-    assert {name: len(v.cameras) for name, v in full.items()} == {"Q": 60, "near": 12, "far": 12}
+    assert {name: len(v.cameras) for name, v in full.items()} == {"Q": 60, "near": 20, "far": 20}
     assert [full["Q"].cameras[i].direction for i in (0, 1)] == [
         tuple(fibonacci_directions(60)[i]) for i in (0, 23)
     ]
@@ -81,13 +89,35 @@ def test_the_floor_is_the_best_filter_on_each_set_and_the_rank_puts_clearing_it_
     validation.cache_all()
     scores = validation.baseline_scores()
     floor = validation.floor()
-    assert floor == {s: max(scores["bicubic"][s], scores["lanczos"][s]) for s in floor}
-    assert validation.shortfall(floor) == 0.0
-    below = {**floor, "far": floor["far"] - 0.25, "Q": floor["Q"] + 2.0}
+    assert {s: floor[s][s] for s in floor} == {
+        s: max(scores["bicubic"][s], scores["lanczos"][s]) for s in floor
+    }
+    means = {s: floor[s][s] for s in floor}  # means alone: no per-view values to pair
+    assert validation.shortfall(means) == 0.0
+    below = {**means, "far": means["far"] - 0.25, "Q": means["Q"] + 2.0}
     assert validation.shortfall(below) == pytest.approx(-0.25)
-    assert validation.rank(floor) > validation.rank(below)  # no worse anywhere beats sharper Q
+    assert validation.rank(means) > validation.rank(below)  # no worse anywhere beats sharper Q
     unseen = {**below, "far": math.nan}  # nothing in view: says nothing
     assert validation.shortfall(unseen) == 0.0
+    best = max(scores, key=lambda name: validation.rank(scores[name]))
+    assert validation.shortfall(scores[best]) == 0.0  # the floor's baseline, paired with itself
+
+
+def test_a_candidate_clears_a_set_by_its_per_view_gains_less_one_standard_error():
+    floor = Scores({"far": 60.0}, {"far": np.array([60.0, 61.0, 59.0, 60.0])})
+    steady = Scores({"far": 60.5}, {"far": np.array([60.5, 61.5, 59.5, 60.5])})
+    assert paired_gap(steady, floor, "far") == pytest.approx(0.5)  # no spread: the mean gain
+    # Gains +3, -2, +3, -2: mean +0.5, standard deviation sqrt(25/3), standard error /2.
+    noisy = Scores({"far": 60.5}, {"far": np.array([63.0, 59.0, 62.0, 58.0])})
+    assert paired_gap(noisy, floor, "far") == pytest.approx(0.5 - math.sqrt(25 / 3) / 2)
+    assert FLOOR_MARGIN == 1.0
+    # A view without foreground (nan) says nothing; one view left: its gain.
+    one = Scores({"far": 61.0}, {"far": np.array([61.0, math.nan, math.nan, math.nan])})
+    assert paired_gap(one, floor, "far") == pytest.approx(1.0)
+    assert math.isnan(
+        paired_gap(Scores({"far": math.nan}, {"far": np.full(4, math.nan)}), floor, "far")
+    )
+    assert paired_gap({"far": 59.0}, floor, "far") == -1.0  # means alone: their difference
 
 
 def test_the_budget_counts_the_validations_owed_in_views(small):
