@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -14,6 +13,7 @@ import numpy as np
 
 from geoscaler import __version__
 from geoscaler.errors import GeoscalerError
+from geoscaler.process import configure_process
 from geoscaler.protocol import PROTOCOL, PROTOCOL_EVALUATION, Evaluation
 from geoscaler.uvmodes import add_uv_argument
 
@@ -580,9 +580,7 @@ def main(
     count), else this call's.
     """
     called_at = None if argv is None else time.perf_counter()
-    # Idle OpenMP threads sleep instead of spinning (README, "Busy machines"); only takes
-    # effect before torch is first imported, as it is by the commands below.
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    configure_process()  # before the commands below first import torch
     args = build_parser().parse_args(argv)
     args.evaluation, args.optimize, args.called_at = evaluation, optimize, called_at
     try:

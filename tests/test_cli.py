@@ -107,3 +107,14 @@ def test_control_characters_in_names_are_escaped_in_errors(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "\x1b" not in err and "\x07" not in err
     assert "evil\\x1b[2J\\x07.obj" in err and err.count("\n") == 1
+
+
+def test_the_command_line_stops_numpy_asking_for_huge_pages(tmp_path, capsys):
+    advice = pytest.importorskip("numpy._core.multiarray")
+    advice._set_madvise_hugepage(True)
+    try:
+        assert main(["info", str(tmp_path / "missing.glb")]) == 2  # any command
+        assert advice._get_madvise_hugepage() is False
+    finally:
+        advice._set_madvise_hugepage(True)  # numpy's default, for the tests after this one
+    assert "missing.glb" in capsys.readouterr().err

@@ -47,6 +47,15 @@ def test_texture_conversion_round_trips_uint8():
     assert torch.equal(gray[..., 0], gray[..., 2])
 
 
+def test_decoding_a_texture_by_table_gives_the_formulas_float32_bits():
+    codes = np.arange(256, dtype=np.uint8).reshape(16, 16, 1).repeat(3, axis=2)
+    formula = srgb_to_linear(torch.from_numpy(codes).float() / 255.0)
+    decoded = texture_to_linear(codes)
+    assert decoded.dtype == torch.float32 and torch.equal(decoded, formula)
+    with pytest.raises(TypeError, match="8-bit"):
+        texture_to_linear(codes.astype(np.float32))
+
+
 def test_to_rgb_broadcasts_grey_and_drops_alpha():
     texture = np.random.default_rng(0).integers(0, 256, (5, 7, 4), dtype=np.uint8)
     for grey in (texture[..., 0], texture[..., :1], texture[..., :2]):  # (H, W), L, LA

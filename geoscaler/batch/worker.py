@@ -15,6 +15,7 @@ from typing import Any
 from geoscaler.downsampling import prepare
 from geoscaler.errors import GeoscalerError
 from geoscaler.io import check_outputs
+from geoscaler.process import configure_process
 from geoscaler.protocol import PROTOCOL_EVALUATION, Evaluation
 from geoscaler.report import dumps
 from geoscaler.runner import downsample_and_report
@@ -65,6 +66,7 @@ def run_asset(task: AssetTask) -> AssetResult:
     is removed whatever happens. A bad asset returns a failed result with its one-line error.
     """
     start = time.perf_counter()
+    configure_process()  # a Ray worker process did not start from the command line
     if task.threads:
         import torch
 
