@@ -196,7 +196,8 @@ class Validation:
 
     @torch.no_grad()
     def psnr(self, textures: Sequence[torch.Tensor | None], uvs: torch.Tensor | None) -> Scores:
-        """Mean PSNR-fg of a candidate per set over its frozen views.
+        """Mean PSNR-fg of a candidate per set over its frozen views, with the per-view values
+        (:class:`Scores`).
 
         On Q all the protocol metrics are computed from the same renders and kept, so that
         :meth:`score` of the candidate's 8-bit textures on Q (a report's row) renders nothing
