@@ -228,8 +228,9 @@ class Validation:
                 metrics = {k: torch.cat([v[k] for v in values]) for k in values[0]}
                 self._q_metrics[_fingerprint(_codes(textures), uvs)] = mean_metrics(metrics)
                 values = [metrics["psnr_fg"]]
-            per_view[name] = torch.cat(values).double().cpu().numpy()
-            scores[name] = float(torch.cat(values).nanmean())  # nan: no foreground
+            psnrs = torch.cat(values)
+            per_view[name] = psnrs.double().cpu().numpy()
+            scores[name] = float(psnrs.nanmean())  # nan: no foreground
         # the unit costs follow the machine: what this validation took, not the first probe
         self._render_seconds = render_seconds / self.num_views
         self._metric_seconds = metric_seconds / max(self.counts["Q"], 1)
