@@ -31,11 +31,11 @@ import torch
 
 from geoscaler.arguments import DEFAULT_TIME_BUDGET, check_method, check_scale, method_options
 from geoscaler.downsampling import product_evaluation
+from geoscaler.events import Controller, ProgressEvent
 from geoscaler.job import Downsampled, JobObserver, checked_output_sizes, downsample
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods import default_steps, is_learned
 from geoscaler.metrics import evaluate
-from geoscaler.optimize import Controller, ProgressEvent
 from geoscaler.protocol import GAIN_REFERENCE, PROTOCOL_EVALUATION, Evaluation
 from geoscaler.render import Renderer
 from geoscaler.texture import MipTexture, linear_to_texture, quantize_linear

@@ -13,8 +13,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from geoscaler.events import Controller, ProgressEvent
 from geoscaler.job import JobObserver
-from geoscaler.optimize import Controller, ProgressEvent
 
 
 def process_started_at() -> float:

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from geoscaler.arguments import check_method
 from geoscaler.errors import GeoscalerError
+from geoscaler.events import Controller
 from geoscaler.io import (
     check_output,
     check_outputs,
@@ -32,7 +33,6 @@ from geoscaler.job import (
 )
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods import MethodOptions, MethodResult
-from geoscaler.optimize import Controller
 from geoscaler.protocol import Evaluation
 from geoscaler.render import Renderer
 from geoscaler.shipping import (

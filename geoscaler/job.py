@@ -27,6 +27,7 @@ import numpy as np
 from geoscaler.arguments import check_distances, check_method, check_rules
 from geoscaler.cameras import spread_order, view_set_cameras
 from geoscaler.errors import GeoscalerError
+from geoscaler.events import Controller, ProgressEvent
 from geoscaler.filters import output_sizes
 from geoscaler.io import (
     check_output,
@@ -35,7 +36,6 @@ from geoscaler.io import (
 from geoscaler.maps import resize_alpha
 from geoscaler.mesh import Material, TexturedMesh, check_geometry
 from geoscaler.methods import MethodOptions, MethodResult, RunContext, is_learned, run_method
-from geoscaler.optimize import Controller, ProgressEvent
 from geoscaler.protocol import GAIN_REFERENCE, REFERENCE_MAX_SIZE, VALIDATION_DISTANCE
 from geoscaler.render import Renderer
 from geoscaler.rows import protocol_row, validation_row

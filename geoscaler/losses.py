@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import torch
 
 from geoscaler.metrics import SSIMLoss
+from geoscaler.texture import MipTexture
 from geoscaler.views import ViewCache
 
 
@@ -56,14 +57,18 @@ def rendering_loss(
 def view_loss(
     cache: ViewCache,
     view: int,
-    textures: Sequence[torch.Tensor | None],
+    textures: Sequence[torch.Tensor | MipTexture | None],
     uvs: torch.Tensor | None,
     ssim_weight: float,
     perceptual: PerceptualTerm | None = None,
 ) -> torch.Tensor:
-    """:func:`rendering_loss` of a candidate in the cached view ``view``."""
+    """:func:`rendering_loss` of a candidate in the cached view ``view``.
+
+    The L2 term alone reads the object's pixels only; with the taps they alone are rendered
+    (:meth:`~geoscaler.views.ViewCache.object_colours`), the same mean up to float rounding."""
+    if uvs is None and cache.with_taps and ssim_weight == 0 and perceptual is None:
+        colours = cache.object_colours(view, textures)
+        reference = cache.views.reference(view)[0].view(-1, 3)
+        return (colours - reference.index_select(0, cache.object_pixels[view])).square().mean()
     image = cache.render(view, textures, uvs)
-    views = cache.views
-    return rendering_loss(
-        image, views.references[view], views.foreground[view], ssim_weight, perceptual
-    )
+    return rendering_loss(image, *cache.views.reference(view), ssim_weight, perceptual)

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import functools
 import math
-import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -37,6 +36,7 @@ import torch
 
 from geoscaler.adamw import AdamW
 from geoscaler.cameras import Camera, sample_training_cameras
+from geoscaler.events import Controller, ProgressEvent
 from geoscaler.losses import PerceptualTerm, view_loss
 from geoscaler.render import Renderer
 from geoscaler.schedule import Schedule
@@ -45,7 +45,7 @@ from geoscaler.texture import fill_gutters, quantize_linear
 from geoscaler.uvmaps import reachable_masks
 from geoscaler.validation import Best as _Best
 from geoscaler.validation import Validation
-from geoscaler.views import ViewCache, ViewSet, training_views
+from geoscaler.views import ViewCache, ViewSet, mip_chains, training_views
 
 TRAINING_RANGE = (1.5, 4.2)
 """The loop's default training distances: wider than the protocol's range S on both sides, so
@@ -138,72 +138,6 @@ class OptimizeConfig:
 
 
 @dataclass
-class ProgressEvent:
-    """A report from the loop.
-
-    Attributes:
-        phase: ``"caching"`` (before the first step), ``"step"``, ``"baselines"`` (the
-            filters scored on the frozen validation sets), ``"validation"`` or ``"done"``.
-        step: steps completed.
-        total_steps: the step limit.
-        elapsed: seconds since the loop started.
-        loss: the latest training loss (nan before the first step).
-        validation_psnr: PSNR-fg on Q of this validation (``"validation"`` events).
-        best_psnr: Q's PSNR-fg of the best candidate so far.
-        done / total: views cached of all the loop will cache (training and validation).
-        scores: set name -> PSNR-fg of this validation (``"validation"`` events).
-        baselines: filter name -> its scores per set (``"baselines"`` events).
-        candidate: returns the current ``(textures, uvs)``, detached, on request: linear
-            textures and UVs (None when the model keeps the mesh's own).
-    """
-
-    phase: str
-    step: int
-    total_steps: int
-    elapsed: float
-    loss: float = math.nan
-    validation_psnr: float | None = None
-    best_psnr: float = -math.inf
-    done: int = 0
-    total: int = 0
-    scores: dict[str, float] = field(default_factory=dict)
-    baselines: dict[str, dict[str, float]] = field(default_factory=dict)
-    candidate: Callable[[], tuple[list[torch.Tensor | None], torch.Tensor | None]] | None = field(
-        default=None, repr=False
-    )
-
-
-class Controller:
-    """Pause, resume and stop a running loop from another thread."""
-
-    def __init__(self):
-        self._running = threading.Event()
-        self._running.set()
-        self._stop = threading.Event()
-
-    def pause(self) -> None:
-        self._running.clear()
-
-    def resume(self) -> None:
-        self._running.set()
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._running.set()
-
-    @property
-    def stopped(self) -> bool:
-        return self._stop.is_set()
-
-    @property
-    def paused(self) -> bool:
-        return not self._running.is_set()
-
-    def wait_while_paused(self) -> None:
-        self._running.wait()
-
-
-@dataclass
 class OptimizeResult:
     """The best validated candidate, finished as it ships (:func:`finish`), and how the run
     went.
@@ -261,7 +195,8 @@ def train_step(
     """
     optimizer.zero_grad()
     textures, uvs = model.candidate()
-    losses = [view_loss(train, i, textures, uvs, config.ssim_weight, perceptual) for i in views]
+    mips = mip_chains(textures)  # once for every view
+    losses = [view_loss(train, i, mips, uvs, config.ssim_weight, perceptual) for i in views]
     loss = torch.stack(losses).mean()
     loss.backward()
     optimizer.lr = config.lr * lr_factor()
@@ -315,7 +250,8 @@ def validate(validation: Validation, candidate: Candidate) -> dict[str, float]:
 class _Caching:
     """Caches the training pool and the validation views between steps.
 
-    Before the first step :meth:`until_trainable` caches ``views_per_step`` training views.
+    Before the first step :meth:`until_trainable` caches ``views_per_step`` training views
+    (none, under a budget that the first step would overrun).
     After each step :meth:`after_step` caches :data:`CACHED_PER_STEP` more, training and
     validation views in turn (whichever has fewer) until one is complete, then the other; the
     validation freezes once complete. Under a budget, once
@@ -333,6 +269,7 @@ class _Caching:
     ):
         self.train, self.validation, self.config = train, validation, config
         self.start, self.emit = start, emit
+        self.view_seconds = 0.0  # the costliest training view cached so far
         self.deadline = None
         if config.time_budget is not None:
             self.deadline = start + CACHING_SHARE * config.time_budget
@@ -342,9 +279,11 @@ class _Caching:
         return self.train.views
 
     def _cache_pool_view(self) -> bool:
+        started = time.perf_counter()
         if not self.pool.cache_next():
             return False
         self.train.find_taps(len(self.pool) - 1)
+        self.view_seconds = max(self.view_seconds, time.perf_counter() - started)
         return True
 
     def _cache_one(self) -> bool:
@@ -354,12 +293,18 @@ class _Caching:
             return self._cache_pool_view() or self.validation.cache_next()
         return self.validation.cache_next() or self._cache_pool_view()
 
-    def until_trainable(self) -> float:
-        """Cache the training views the first step needs; returns the seconds that took, the
-        loop's estimate of its first step (which renders and differentiates as many views)."""
+    def until_trainable(self, fits: Callable[[float], bool]) -> float | None:
+        """Cache the training views the first step needs while ``fits(seconds)`` says that
+        caching the rest of them and then a step as long (it renders and differentiates as
+        many views) still fit the budget. Returns the seconds that caching took, the loop's
+        estimate of its first step; None when the first step cannot fit."""
         began = time.perf_counter()
         needed = min(self.config.views_per_step, len(self.pool.cameras))
-        while len(self.pool) < needed and self._cache_pool_view():
+        while len(self.pool) < needed:
+            if not fits(self.view_seconds * (needed - len(self.pool) + needed)):
+                return None
+            if not self._cache_pool_view():
+                break
             elapsed = time.perf_counter() - self.start
             self.emit(
                 ProgressEvent(
@@ -454,13 +399,23 @@ def optimize(
         masks = reachable_masks(renderer.mesh, validation.sizes, farthest, renderer.resolution)
         return [None if m is None else m.to(renderer.device) for m in masks]
 
+    best = _Best(validation)
+    deadline = None if config.time_budget is None else start + config.time_budget
     caching = _Caching(train, validation, config, start, emit)
-    step_seconds = caching.until_trainable()  # until a step is timed, its estimate
+
+    def seconds_needed() -> float:
+        owed = 1 + (not best.has_start)  # the last state, and the start if not yet validated
+        view_seconds = caching.view_seconds  # a validation view's cost, before one is cached
+        return 1.5 * validation.seconds_needed(owed, True, view_seconds) + reserve
+
+    def fits(seconds: float) -> bool:
+        """``seconds`` of work, then what must follow the loop, fit in the budget."""
+        return deadline is None or time.perf_counter() + seconds + seconds_needed() <= deadline
+
+    step_seconds = caching.until_trainable(fits)  # until a step is timed, its estimate
     optimizer = AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     generator = torch.Generator().manual_seed(config.seed)
     start_state = _detached(model)
-    best = _Best(validation)
-    deadline = None if config.time_budget is None else start + config.time_budget
 
     candidate = functools.partial(_detached, model)  # the current state, on request
 
@@ -494,22 +449,20 @@ def optimize(
         start_candidate = finish(textures, reachable()), uvs
         best.offer(validate(validation, start_candidate), start_candidate, 0)
 
-    def seconds_needed() -> float:
-        owed = 1 + (not best.has_start)  # the last state, and the start if not yet validated
-        return 1.5 * validation.seconds_needed(owed, caching=True) + reserve
-
     history: list[dict] = []
     step, loss_value, stopped_by = 0, math.nan, "steps"
+    if step_seconds is None:  # not even the first step fits
+        stopped_by = "time budget"
     lr_scale, backtracks, check_at = 1.0, 0, -1  # check_at: a validation backtracking asks for
     validated_step, first_step = -1, math.nan
     loop_start, schedule = time.perf_counter(), config.schedule
-    while step < config.steps:
+    while step_seconds is not None and step < config.steps:
         controller.wait_while_paused()
         if controller.stopped:
             stopped_by = "stopped"
             break
         step_start = time.perf_counter()
-        if deadline is not None and step_start + step_seconds + seconds_needed() > deadline:
+        if not fits(step_seconds):
             stopped_by = "time budget"
             break
         views = torch.randperm(len(train), generator=generator)[: config.views_per_step]

@@ -14,12 +14,19 @@ packing, never assumed):
   moves the parts apart; it mishandles charts under a texel or two: such charts are packed as
   their bounding box (at least :data:`MIN_BOX_TEXELS` wide), the chart inside it;
 - ``rotate_charts`` may transpose a chart (a mirror): callers turn it off where that matters;
-  ``rotate_charts_to_axis`` (a free rotation) is always off.
+  ``rotate_charts_to_axis`` (a free rotation) is always off;
+- its task scheduler can lose the wake-up it sends a worker thread that is going back to sleep
+  (it notifies without the worker's mutex), and destroying the atlas then joins that thread
+  forever: a hang right after a packing, seen once in four test runs here. A used atlas is
+  destroyed only after the packings that follow it (:func:`_retire`), when its workers are
+  long asleep, where a wake-up reaches them.
 """
 
 from __future__ import annotations
 
 import math
+import time
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +40,11 @@ SEARCH_STEPS = 12
 """Bisection steps of the density search (from 1/16 of the all-texels bound: about 0.3 %)."""
 SCALE_TOLERANCE = 1e-3
 """Relative error allowed between a chart's planned and packed scale."""
+RETIRED_ATLASES = 8
+"""Used atlases kept alive (see the module's note on xatlas's workers), the oldest destroyed
+first; also any idle for :data:`RETIRED_SECONDS`."""
+RETIRED_SECONDS = 1.0
+_retired: deque[tuple[float, xatlas.Atlas]] = deque()
 
 
 class PackingError(GeoscalerError):
@@ -151,6 +163,7 @@ def _pack_once(
     options.rotate_charts, options.rotate_charts_to_axis = rotate, False
     options.bilinear, options.blockAlign, options.bruteForce = True, False, False
     atlas.generate(pack_options=options)
+    _retire(atlas)
     if atlas.atlas_count != 1 or (atlas.width, atlas.height) != (inner, inner):
         return None
     vmapping, indices, packed = atlas.get_mesh(0)
@@ -161,6 +174,14 @@ def _pack_once(
     if not np.allclose(new[vmapping], (packed * inner + padding / 2) / size, atol=1e-6):
         return None
     return new
+
+
+def _retire(atlas: xatlas.Atlas) -> None:
+    """Keep a used atlas alive for a while; destroy those retired long or many packings ago."""
+    now = time.monotonic()
+    while _retired and (len(_retired) >= RETIRED_ATLASES or now - _retired[0][0] > RETIRED_SECONDS):
+        _retired.popleft()
+    _retired.append((now, atlas))
 
 
 def _fit(old: np.ndarray, chart: np.ndarray, new: np.ndarray, count: int):

@@ -11,10 +11,10 @@ from pathlib import Path
 from geoscaler.arguments import method_options
 from geoscaler.console import DownsampleProgress, stop_on_interrupt
 from geoscaler.downsampling import Job, prepare, product_evaluation, run_job
+from geoscaler.events import Controller
 from geoscaler.io import check_output, prepare_folder, save_mesh, save_png, write_atomically
 from geoscaler.job import Downsampled
 from geoscaler.methods import is_learned
-from geoscaler.optimize import Controller
 from geoscaler.procedural import scan_mesh
 from geoscaler.protocol import GAIN_REFERENCE, PROTOCOL_EVALUATION, Evaluation
 from geoscaler.render import Renderer

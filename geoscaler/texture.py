@@ -11,6 +11,8 @@ convention of :mod:`geoscaler.mesh` (``v = 0`` at the bottom row).
 
 from __future__ import annotations
 
+import warnings
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
@@ -265,10 +267,91 @@ def take(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     return torch.stack([row.index_select(0, index) for row in table])
 
 
-def scatter_add(size: int, index: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
-    """``(C, size)`` zeros with ``(C, M)`` ``values`` added at columns ``index``, per channel
-    (see :func:`take` for why)."""
-    return torch.stack([values.new_zeros(size).index_add(0, index, row) for row in values])
+class TapMatrix:
+    """Fixed texture lookups as one sparse ``(R, T)`` matrix: output ``r`` is the sum of
+    ``weight * table[texel]`` over the taps of row ``r``.
+
+    With fixed UVs every rendered pixel is such a sum over texels of the candidate's mip
+    chain, so a render is a sparse-dense product, and its gradient the product with the
+    transpose (CSR both, int32 indices; the transpose is made at the first backward pass, so
+    views that are only ever scored never pay for it). On the CPU the pair is about 10 times
+    faster than gathering the taps and adding them up per pixel (``index_select`` /
+    ``index_add``), forward and backward.
+
+    Args:
+        row, texel: ``(M,)`` int32 row (output) and texel of each tap, in any order (sorted
+            by row is quickest); repeated pairs add up.
+        weight: ``(M,)`` float weights.
+        shape: ``(R, T)``: outputs and texels of the flat mip chain.
+    """
+
+    def __init__(
+        self, row: torch.Tensor, texel: torch.Tensor, weight: torch.Tensor, shape: tuple[int, int]
+    ):
+        self.shape = shape
+        self.matrix = _csr(row, texel, weight, shape)
+
+    @property
+    def texel(self) -> torch.Tensor:
+        """``(M,)`` int32 texel of every tap, by row."""
+        return self.matrix.col_indices()
+
+    @property
+    def weight(self) -> torch.Tensor:
+        """``(M,)`` weight of every tap, by row."""
+        return self.matrix.values()
+
+    @cached_property
+    def transposed(self) -> torch.Tensor:
+        """The ``(T, R)`` transpose, CSR: what the gradient is a product with."""
+        crow = self.matrix.crow_indices()
+        rows = torch.arange(self.shape[0], dtype=torch.int32, device=crow.device)
+        row = torch.repeat_interleave(rows, crow.diff())
+        return _csr(self.texel, row, self.weight, (self.shape[1], self.shape[0]))
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes the matrix (and its transpose, once made) hold."""
+        matrices = [self.matrix, self.__dict__.get("transposed")]
+        parts = [
+            part
+            for m in matrices
+            if m is not None
+            for part in (m.crow_indices(), m.col_indices(), m.values())
+        ]
+        return sum(part.element_size() * part.nelement() for part in parts)
+
+    def __call__(self, table: torch.Tensor) -> torch.Tensor:
+        """``(R, C)`` outputs of a ``(T, C)`` texel table (differentiable in ``table``)."""
+        return _TapProduct.apply(self, table)
+
+
+def _csr(
+    row: torch.Tensor, column: torch.Tensor, value: torch.Tensor, shape: tuple[int, int]
+) -> torch.Tensor:
+    """A CSR matrix of ``(row, column, value)`` entries in any order, int32 indices."""
+    if len(row) > 1 and not bool((row[1:] >= row[:-1]).all()):
+        order = torch.argsort(row, stable=True)
+        row, column, value = row[order], column[order], value[order]
+    counts = torch.bincount(row.long(), minlength=shape[0])
+    crow = torch.zeros(shape[0] + 1, dtype=torch.int32, device=row.device)
+    crow[1:] = torch.cumsum(counts, 0)
+    with warnings.catch_warnings():  # "sparse CSR support is in beta": the product is not
+        warnings.simplefilter("ignore", UserWarning)
+        return torch.sparse_csr_tensor(crow, column.int(), value, shape)
+
+
+class _TapProduct(torch.autograd.Function):
+    """``taps.matrix @ table``, whose backward is ``taps.transposed @ grad``."""
+
+    @staticmethod
+    def forward(ctx, taps: TapMatrix, table: torch.Tensor) -> torch.Tensor:
+        ctx.taps = taps
+        return taps.matrix @ table
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> tuple[None, torch.Tensor]:
+        return None, ctx.taps.transposed @ grad.contiguous()
 
 
 class MipTexture:
@@ -287,8 +370,12 @@ class MipTexture:
         self.size = self.layout.size
         self.num_levels = self.layout.num_levels
         levels = build_mip_chain(texture)
-        flat = torch.cat([level.reshape(-1, self.channels) for level in levels])
-        self.texels = flat.T.contiguous()  # (C, texels of all levels)
+        self.table = torch.cat([level.reshape(-1, self.channels) for level in levels])
+
+    @cached_property
+    def texels(self) -> torch.Tensor:
+        """``(C, T)`` the chain's texels of all levels, one contiguous row per channel."""
+        return self.table.T.contiguous()
 
     def bilinear(self, u: torch.Tensor, v: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
         """``(C, N)`` bilinear samples at integer mip ``level`` (see :class:`MipLayout`)."""

@@ -34,7 +34,7 @@ from geoscaler.metrics import evaluate, mean_metrics, psnr_fg
 from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, VALIDATION_DISTANCE
 from geoscaler.render import Renderer
 from geoscaler.texture import linear_to_texture, texture_to_linear, to_rgb
-from geoscaler.views import ViewCache, ViewSet
+from geoscaler.views import ViewCache, ViewSet, mip_chains
 
 GUARD_VIEWS = 20
 """Views of each guard set (near, far). With 12, a 60 s job froze 6 far views of the 4x banana
@@ -209,6 +209,7 @@ class Validation:
             uvs: ``(V, 2)`` UVs, or None for the mesh's own.
         """
         self.freeze()
+        mips = mip_chains(textures)
         scores, per_view = {}, {}
         render_seconds = metric_seconds = 0.0
         for name, cache in self.sets.items():
@@ -216,7 +217,7 @@ class Validation:
             for view in range(self.counts[name]):
                 reference, foreground = cache.views.reference(view)
                 started = time.perf_counter()
-                image = cache.render(view, textures, uvs)
+                image = cache.render(view, mips, uvs)
                 rendered = time.perf_counter()
                 if name == "Q":
                     values.append(evaluate(image[None], reference[None], foreground[None]))
@@ -291,12 +292,13 @@ class Validation:
         PSNR-fg on Q. A candidate that clears the floor outranks every one that does not."""
         return self.shortfall(scores), scores["Q"]
 
-    def seconds_needed(self, validations: int, caching: bool) -> float:
+    def seconds_needed(self, validations: int, caching: bool, view_seconds: float = 0.0) -> float:
         """An estimate of the seconds to finish: ``validations`` candidate validations (a
         render in every view, the metrics in Q's), the baselines' if not yet scored, the
         caller's scorings after (counted as one more computation of Q's metrics: they reuse
         the validation's renders, see :meth:`score`), and (``caching``) the views
-        :meth:`freeze` must still cache; 0 before any view is cached."""
+        :meth:`freeze` must still cache, each taking ``view_seconds`` until one of these
+        views is cached and timed (the renders are not counted before)."""
         if self._baseline_scores is None:
             validations += len(self.baselines)
         q_views = self.counts["Q"] if self.counts else len(self.sets["Q"])
@@ -304,7 +306,7 @@ class Validation:
         seconds += q_views * (validations + self.scorings_after) * self._metric_seconds
         if caching and not self.frozen:
             missing = (max(MIN_FROZEN.get(n, 1) - len(c), 0) for n, c in self.sets.items())
-            seconds += self._view_seconds * sum(missing)
+            seconds += (self._view_seconds or view_seconds) * sum(missing)
         return seconds
 
     @torch.no_grad()

@@ -15,7 +15,6 @@ pool of either kind.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -28,10 +27,9 @@ from geoscaler.soft import SoftFragments, SoftRenderer, SoftSettings
 from geoscaler.texture import (
     MipLayout,
     MipTexture,
+    TapMatrix,
     UVFootprint,
     linear_to_srgb,
-    scatter_add,
-    take,
     texture_to_linear,
 )
 
@@ -149,28 +147,10 @@ class ViewSet:
             return evaluate(images, self.references[:count], self.foreground[:count])
 
 
-@dataclass
-class PixelTaps:
-    """A view's texture lookups for one material, folded into its pixels.
-
-    With fixed UVs a rendered pixel (before sRGB encoding) is a fixed weighted sum of texels of
-    the candidate's mip chain: its samples' trilinear taps, each weighted 1 / samples per
-    pixel. Taps of zero weight (the unused level of a magnified sample) are dropped.
-
-    Attributes:
-        pixel: ``(T,)`` int32 flat pixel index of each tap.
-        texel: ``(T,)`` int32 index into the flat mip chain.
-        weight: ``(T,)`` float32.
-    """
-
-    pixel: torch.Tensor
-    texel: torch.Tensor
-    weight: torch.Tensor
-
-
 class ViewCache:
     """A :class:`ViewSet` plus, for models that keep the mesh's UVs, every view's texture taps
-    for candidate textures of fixed sizes, so a render is one gather per material.
+    for candidate textures of fixed sizes, so a render is one sparse product per material, over
+    the object's pixels only (the background is black).
 
     Taps are found when a view is first rendered (or :meth:`find_taps` asks), so a cache
     follows its view set as it grows
@@ -198,8 +178,9 @@ class ViewCache:
         self.sizes = list(sizes)
         self.layouts = [None if s is None else MipLayout(*s, device) for s in sizes]
         self.with_taps = with_taps
-        self.taps: list[list[PixelTaps | None]] = []
-        self.untextured: list[torch.Tensor] = []
+        self.taps: list[list[TapMatrix | None]] = []
+        self.untextured: list[torch.Tensor] = []  # per view (F, 3) at its object's pixels
+        self.object_pixels: list[torch.Tensor] = []  # per view (F,) its foreground pixels
 
     def __len__(self) -> int:
         return len(self.views)
@@ -208,35 +189,53 @@ class ViewCache:
     def find_taps(self, view: int) -> None:
         """Find the taps of every cached view up to ``view`` (nothing without taps)."""
         while self.with_taps and len(self.taps) <= view:
-            gbuffer = self.views.gbuffers[len(self.taps)]
-            self.taps.append(self._taps(gbuffer))
-            self.untextured.append(self._untextured(gbuffer))
+            index = len(self.taps)
+            gbuffer = self.views.gbuffers[index]
+            foreground = self.views.reference(index)[1].view(-1)
+            pixels = torch.nonzero(foreground).squeeze(1)
+            row_of_pixel = torch.full(foreground.shape, -1, dtype=torch.int32, device=pixels.device)
+            row_of_pixel[pixels] = torch.arange(
+                len(pixels), dtype=torch.int32, device=pixels.device
+            )
+            self.object_pixels.append(pixels)
+            self.taps.append(self._taps(gbuffer, row_of_pixel, len(pixels)))
+            self.untextured.append(self._untextured(gbuffer).T.index_select(0, pixels))
 
-    def _taps(self, gbuffer: GBuffer | SoftFragments) -> list[PixelTaps | None]:
+    def _taps(
+        self, gbuffer: GBuffer | SoftFragments, row_of_pixel: torch.Tensor, rows: int
+    ) -> list[TapMatrix | None]:
+        """Per material the view's lookups folded into its object's pixels (``row_of_pixel``:
+        each pixel's row of the ``rows`` rows): with fixed UVs a rendered pixel (before sRGB
+        encoding) is a fixed weighted sum of texels of the candidate's mip chain, its samples'
+        trilinear taps each weighted 1 / samples per pixel (taps of zero weight, the unused
+        level of a magnified sample, are dropped); None: untextured or unseen."""
         if isinstance(gbuffer, SoftFragments):
             found = self.renderer.pixel_taps(gbuffer, self.layouts)
-            return [None if taps is None else PixelTaps(*taps) for taps in found]
+            return [
+                None
+                if taps is None
+                else TapMatrix(row_of_pixel[taps[0]], *taps[1:], (rows, layout.num_texels))
+                for taps, layout in zip(found, self.layouts, strict=True)
+            ]
         footprint = self.renderer.footprint(gbuffer)
         material = self.renderer.face_material.index_select(0, gbuffer.tri_ids)
-        pixel_of_sample = self.renderer.pixel_of_sample(gbuffer)
+        row_of_sample = row_of_pixel.index_select(0, self.renderer.pixel_of_sample(gbuffer))
         share = 1.0 / self.renderer.supersample**2
-        taps: list[PixelTaps | None] = []
+        taps: list[TapMatrix | None] = []
         for index, layout in enumerate(self.layouts):
             samples = torch.nonzero(material == index).squeeze(1)
             if layout is None or len(samples) == 0:
                 taps.append(None)
                 continue
+            row = row_of_sample.index_select(0, samples)
+            by_row = torch.argsort(row, stable=True)  # so the taps come sorted by row
+            samples, row = samples[by_row], row[by_row]
             part = UVFootprint(*(t[samples] for t in footprint))
-            texel, weight = layout.taps(part)  # (8, n), sample-major after the transpose
-            pixel = pixel_of_sample[samples].expand(len(texel), -1)
+            texel, weight = layout.taps(part)  # (8, n): sample-major after the transpose
             keep = weight.T != 0
-            taps.append(
-                PixelTaps(
-                    pixel.T[keep].to(torch.int32),
-                    texel.T[keep].to(torch.int32),
-                    weight.T[keep] * share,
-                )
-            )
+            row = row.expand(len(texel), -1).T[keep]
+            shape = (rows, layout.num_texels)
+            taps.append(TapMatrix(row, texel.T[keep], weight.T[keep] * share, shape))
         return taps
 
     def _untextured(self, gbuffer: GBuffer | SoftFragments) -> torch.Tensor:
@@ -252,23 +251,36 @@ class ViewCache:
         return image.index_add(1, pixels, colours, alpha=1.0 / self.renderer.supersample**2)
 
     def render(
-        self, view: int, textures: Sequence[torch.Tensor | None], uvs: torch.Tensor | None
+        self,
+        view: int,
+        textures: Sequence[torch.Tensor | MipTexture | None],
+        uvs: torch.Tensor | None,
     ) -> torch.Tensor:
-        """``(H, W, 3)`` sRGB render of a candidate in cached view ``view`` (differentiable)."""
-        gbuffer = self.views.gbuffers[view]
+        """``(H, W, 3)`` sRGB render of a candidate in cached view ``view`` (differentiable).
+
+        ``textures``: per material a ``(h, w, 3)`` linear texture, its mip chain
+        (:func:`mip_chains`: made once for a candidate rendered in many views) or None."""
+        mips = mip_chains(textures)
         if uvs is not None or not self.with_taps:
-            mips = [None if t is None else MipTexture(t) for t in textures]
-            return self.renderer.render(gbuffer, mips, uvs)
-        self.find_taps(view)
-        image = self.untextured[view]
-        for index, (texture, taps) in enumerate(zip(textures, self.taps[view], strict=True)):
-            if texture is None or taps is None:
-                continue
-            texels = take(MipTexture(texture).texels, taps.texel) * taps.weight
-            lit = scatter_add(image.shape[1], taps.pixel, texels)
-            image = image + self.renderer.factors[index][:, None] * lit
+            return self.renderer.render(self.views.gbuffers[view], mips, uvs)
+        colours = self.object_colours(view, mips)
         side = self.renderer.image_size
-        return linear_to_srgb(image.T.reshape(side, side, 3))
+        image = colours.new_zeros(side * side, 3).index_copy(0, self.object_pixels[view], colours)
+        return image.view(side, side, 3)
+
+    def object_colours(
+        self, view: int, textures: Sequence[torch.Tensor | MipTexture | None]
+    ) -> torch.Tensor:
+        """``(F, 3)`` sRGB colours of a candidate with the mesh's UVs at the object's pixels in
+        cached view ``view`` (:attr:`object_pixels`: its foreground mask's, in order);
+        differentiable. Needs the taps (``with_taps``)."""
+        self.find_taps(view)
+        linear = self.untextured[view]
+        mips = mip_chains(textures)
+        for index, (mip, taps) in enumerate(zip(mips, self.taps[view], strict=True)):
+            if mip is not None and taps is not None:
+                linear = linear + taps(mip.table) * self.renderer.factors[index]
+        return linear_to_srgb(linear)
 
     def score(
         self,
@@ -290,9 +302,16 @@ class ViewCache:
         device = self.renderer.device
         linear = [None if t is None else texture_to_linear(t, device) for t in textures]
         with torch.no_grad():
-            images = torch.stack([self.render(i, linear, None) for i in range(count)])
+            mips = mip_chains(linear)
+            images = torch.stack([self.render(i, mips, None) for i in range(count)])
             views = self.views
             return evaluate(images, views.references[:count], views.foreground[:count])
+
+
+def mip_chains(textures: Sequence[torch.Tensor | MipTexture | None]) -> list[MipTexture | None]:
+    """Per material the mip chain of a ``(h, w, C)`` linear texture (a chain or None passes as
+    it is)."""
+    return [t if t is None or isinstance(t, MipTexture) else MipTexture(t) for t in textures]
 
 
 def cache_view_set(

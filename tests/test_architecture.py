@@ -35,7 +35,7 @@ LAYERS = [
     ["filters", "io", "procedural"],
     ["render", "uvmaps", "maps", "soft"],
     ["views", "nn", "atlas", "bake"],
-    ["validation", "losses"],
+    ["validation", "losses", "events"],
     ["optimize"],
     ["methods"],
     ["arguments", "rows", "shipping"],

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from geoscaler import packing
 from geoscaler.atlas import (
     atlas_problems,
     chart_footprint,
@@ -153,6 +154,21 @@ def test_padding_violations_count_charts_closer_than_the_padding():
     labels = np.array([0, 1])
     assert padding_violations(texels, labels, 8, 3) == 0
     assert padding_violations(texels, labels, 8, 4) == 2  # each sees the other
+
+
+def test_used_atlases_outlive_their_packing_a_bounded_while(monkeypatch):
+    # xatlas may hang destroying an atlas whose worker thread is still going back to sleep
+    monkeypatch.setattr(packing, "_retired", type(packing._retired)())
+    clock = iter([0.0] * 20 + [0.5, 1.4])
+    monkeypatch.setattr(packing.time, "monotonic", lambda: next(clock))
+    atlases = [object() for _ in range(22)]
+    for atlas in atlases[:20]:
+        packing._retire(atlas)
+    assert [a for _, a in packing._retired] == atlases[12:20]  # the last 8 packings' own
+    packing._retire(atlases[20])  # 0.5 s later: all kept within the count
+    assert len(packing._retired) == packing.RETIRED_ATLASES
+    packing._retire(atlases[21])  # at 1.4 s: those idle for over a second are gone
+    assert [a for _, a in packing._retired] == [atlases[20], atlases[21]]
 
 
 def test_charts_larger_than_the_atlas_are_refused_not_shrunk():

@@ -9,6 +9,7 @@ import torch
 from geoscaler.texture import (
     MipLayout,
     MipTexture,
+    TapMatrix,
     UVFootprint,
     build_mip_chain,
     fill_gutters,
@@ -185,6 +186,32 @@ def test_sampling_is_differentiable_in_texels_and_uvs():
         return MipTexture(texels).sample(UVFootprint(u, v, du_dx, zero, zero, dv_dy))
 
     assert torch.autograd.gradcheck(sample, (texels, u, v, du_dx, dv_dy))
+
+
+def test_a_tap_matrix_sums_each_rows_weighted_texels_given_in_any_order():
+    # Rows 0..3 of a 4-texel, 2-channel table; taps out of order, (0, 1) given twice, row 3
+    # with no tap at all.
+    row = torch.tensor([2, 0, 1, 0, 2, 0], dtype=torch.int32)
+    texel = torch.tensor([3, 1, 0, 2, 3, 1], dtype=torch.int32)
+    weight = torch.tensor([0.5, 0.25, 1.0, 0.5, 0.25, 0.25])
+    table = torch.tensor([[1.0, 10.0], [2.0, 20.0], [4.0, 40.0], [8.0, 80.0]])
+    taps = TapMatrix(row, texel, weight, (4, 4))
+    expected = torch.tensor([[3.0, 30.0], [1.0, 10.0], [6.0, 60.0], [0.0, 0.0]])
+    assert torch.equal(taps(table), expected)
+    assert taps.texel.tolist() == [1, 2, 1, 0, 3, 3]  # by row, in the order given
+    assert taps.nbytes == 5 * 4 + 6 * 4 + 6 * 4  # CSR, int32 indices (no transpose yet)
+
+
+def test_a_tap_matrix_is_differentiable_in_its_table():
+    generator = torch.Generator().manual_seed(0)
+    row = torch.randint(0, 5, (40,), generator=generator, dtype=torch.int32)
+    texel = torch.randint(0, 7, (40,), generator=generator, dtype=torch.int32)
+    weight = torch.rand(40, generator=generator, dtype=torch.float64)
+    taps = TapMatrix(row, texel, weight, (5, 7))
+    table = torch.rand(7, 3, generator=generator, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(taps, (table,))
+    # the matrix and, since the backward pass, its transpose (7 + 1 row offsets)
+    assert taps.nbytes == (6 * 4 + 40 * (4 + 8)) + (8 * 4 + 40 * (4 + 8))
 
 
 def test_srgb_conversions_are_differentiable():

@@ -23,9 +23,9 @@ import numpy as np
 
 from geoscaler.atlas import Atlas
 from geoscaler.errors import GeoscalerError
+from geoscaler.events import Controller, ProgressEvent
 from geoscaler.filters import output_sizes, reference_textures
 from geoscaler.mesh import TexturedMesh
-from geoscaler.optimize import Controller, ProgressEvent
 from geoscaler.protocol import REFERENCE_MAX_SIZE
 from geoscaler.render import Renderer
 from geoscaler.sizes import SizeRule, check_scale

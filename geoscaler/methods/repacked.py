@@ -31,7 +31,7 @@ from geoscaler.sizes import COLOR, SizeRule
 from geoscaler.texture import texture_to_linear
 from geoscaler.uvmodes import check_uv_mode
 from geoscaler.validation import Validation, validation_view_sets
-from geoscaler.views import ViewCache, ViewSet
+from geoscaler.views import ViewCache, ViewSet, mip_chains
 
 FOOTPRINT_VIEWS = 8
 """Training views whose G-buffers plan the chart scales (cached once, reused by the loop)."""
@@ -203,6 +203,7 @@ def _training_psnr(views: ViewSet, renderer: Renderer, model: Any, sizes: list) 
     cache = ViewCache(views, sizes, True, renderer)
     textures, _ = model.candidate()
     with torch.no_grad():
+        textures = mip_chains(textures)
         values = [
             psnr_fg(cache.render(i, textures, None)[None], *[t[None] for t in views.reference(i)])
             for i in range(len(views))

@@ -1,0 +1,81 @@
+"""Seconds per training step of ``direct``, as its loop takes them: K views rendered from cached
+taps, the default loss, backward, AdamW.
+
+For each mesh it caches ``--pool`` training views at the loop's training distances, takes a few
+steps to warm up (the first backward pass through a view also makes its taps' transpose), then
+times ``--steps`` steps of ``--views`` views each and prints the median.
+
+To compare two versions, run this file from each checkout in turn, interleaved, with the same
+arguments (timings on a shared machine drift between runs):
+
+    for i in 1 2; do for tree in OLD NEW; do
+        PYTHONPATH=$tree python $tree/benchmarks/train_step.py MESH ...; done; done
+
+Usage:
+    python benchmarks/train_step.py MESH [MESH ...] [--scale 4] [--views 4] [--pool 8]
+        [--steps 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import torch
+
+from geoscaler.adamw import AdamW
+from geoscaler.arguments import check_rules
+from geoscaler.cameras import sample_training_cameras
+from geoscaler.filters import output_sizes
+from geoscaler.io import load_mesh
+from geoscaler.methods.direct import DEFAULT_CONFIG, lanczos_texel_model
+from geoscaler.optimize import TRAINING_RANGE, OptimizeConfig, train_step
+from geoscaler.process import configure_process
+from geoscaler.render import Renderer
+from geoscaler.views import training_views
+
+
+def step_seconds(path: str, scale: int, views: int, pool: int, steps: int) -> list[float]:
+    """Seconds of each of ``steps`` timed training steps on the mesh at ``path``."""
+    mesh = load_mesh(path)
+    renderer = Renderer(mesh, "cpu")
+    (rule,) = check_rules([scale])
+    sizes = output_sizes(mesh, rule, renderer.evaluation.reference_max_size)
+    cache = training_views(
+        renderer, sample_training_cameras(pool, 0, TRAINING_RANGE), sizes, with_taps=True
+    )
+    while cache.views.cache_next():
+        pass
+    model = lanczos_texel_model(mesh, rule, renderer)
+    config = OptimizeConfig(ssim_weight=DEFAULT_CONFIG["ssim_weight"])
+    optimizer = AdamW(model.parameters(), lr=1e-3)
+    order = [list(range(i, i + views)) for i in range(0, pool - views + 1, views)]
+    for chosen in order:  # warm-up: every view's first backward pass
+        train_step(cache, model, optimizer, chosen, config, lambda: 1.0)
+    seconds = []
+    for index in range(steps):
+        started = time.perf_counter()
+        train_step(cache, model, optimizer, order[index % len(order)], config, lambda: 1.0)
+        seconds.append(time.perf_counter() - started)
+    return seconds
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("meshes", nargs="+")
+    parser.add_argument("--scale", type=int, default=4)
+    parser.add_argument("--views", type=int, default=4)
+    parser.add_argument("--pool", type=int, default=8)
+    parser.add_argument("--steps", type=int, default=10)
+    args = parser.parse_args()
+    configure_process()
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads")
+    for path in args.meshes:
+        seconds = step_seconds(path, args.scale, args.views, args.pool, args.steps)
+        print(f"{path}: median {statistics.median(seconds):.4f} s per step of {args.views} views")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
