@@ -102,6 +102,9 @@ class OptimizeConfig:
             size that hurts is found early (None: no backtracking).
         weight_decay: AdamW weight decay.
         ssim_weight: weight of ``1 - SSIM`` beside the L2 term.
+        loss_in_db: the step minimises the mean of its views' ``10 log10(loss)`` (each view's
+            loss relative to itself, as the validation's per-view PSNR gains weigh views)
+            instead of the mean loss (where views with large errors, close ones, dominate).
         validate_every: steps between validations on Q (the last step always validates).
         patience: validations without improvement before stopping (None: never).
         seed: seeds the cameras and the view order.
@@ -121,6 +124,7 @@ class OptimizeConfig:
     weight_decay: float = 0.0
     warmup_steps: int = 10
     ssim_weight: float = 0.1
+    loss_in_db: bool = False
     validate_every: int = 50
     patience: int | None = None
     seed: int = 0
@@ -188,7 +192,8 @@ def train_step(
     lr_factor: Callable[[], float],
     perceptual: PerceptualTerm | None = None,
 ) -> float:
-    """One step on the mean loss of the training ``views``; returns the loss.
+    """One step on the mean loss of the training ``views`` (or of their losses in dB,
+    ``config.loss_in_db``); returns the mean loss.
 
     ``lr_factor()`` is read after the backward pass (so that a budgeted schedule sees the time
     the step took) and scales ``config.lr`` for this step.
@@ -197,12 +202,15 @@ def train_step(
     textures, uvs = model.candidate()
     mips = mip_chains(textures)  # once for every view
     losses = [view_loss(train, i, mips, uvs, config.ssim_weight, perceptual) for i in views]
-    loss = torch.stack(losses).mean()
-    loss.backward()
+    loss = torch.stack(losses)
+    if config.loss_in_db:  # a view with nothing to get wrong (loss 0) has no gradient
+        (10 * torch.log10(loss.clamp_min(1e-12))).mean().backward()
+    else:
+        loss.mean().backward()
     optimizer.lr = config.lr * lr_factor()
     optimizer.step()
     model.project()
-    return loss.item()
+    return loss.mean().item()
 
 
 Candidate = tuple[list[torch.Tensor | None], torch.Tensor | None]
@@ -251,7 +259,7 @@ class _Caching:
     """Caches the training pool and the validation views between steps.
 
     Before the first step :meth:`until_trainable` caches ``views_per_step`` training views
-    (none, under a budget that the first step would overrun).
+    (none beyond the first, under a budget they would overrun).
     After each step :meth:`after_step` caches :data:`CACHED_PER_STEP` more, training and
     validation views in turn (whichever has fewer) until one is complete, then the other; the
     validation freezes once complete. Under a budget, once
@@ -293,16 +301,14 @@ class _Caching:
             return self._cache_pool_view() or self.validation.cache_next()
         return self.validation.cache_next() or self._cache_pool_view()
 
-    def until_trainable(self, fits: Callable[[float], bool]) -> float | None:
+    def until_trainable(self, fits: Callable[[float], bool]) -> bool:
         """Cache the training views the first step needs while ``fits(seconds)`` says that
-        caching the rest of them and then a step as long (it renders and differentiates as
-        many views) still fit the budget. Returns the seconds that caching took, the loop's
-        estimate of its first step; None when the first step cannot fit."""
-        began = time.perf_counter()
+        caching the rest of them (at the costliest one's price so far) still fits the budget;
+        False when they cannot all be cached in time."""
         needed = min(self.config.views_per_step, len(self.pool.cameras))
         while len(self.pool) < needed:
-            if not fits(self.view_seconds * (needed - len(self.pool) + needed)):
-                return None
+            if not fits(self.view_seconds * (needed - len(self.pool))):
+                return False
             if not self._cache_pool_view():
                 break
             elapsed = time.perf_counter() - self.start
@@ -311,7 +317,7 @@ class _Caching:
                     "caching", 0, self.config.steps, elapsed, done=len(self.pool), total=needed
                 )
             )
-        return time.perf_counter() - began
+        return True
 
     def after_step(self) -> None:
         """Cache :data:`CACHED_PER_STEP` views; past the caching deadline, :meth:`close`."""
@@ -412,7 +418,8 @@ def optimize(
         """``seconds`` of work, then what must follow the loop, fit in the budget."""
         return deadline is None or time.perf_counter() + seconds + seconds_needed() <= deadline
 
-    step_seconds = caching.until_trainable(fits)  # until a step is timed, its estimate
+    trainable = caching.until_trainable(fits)
+    step_seconds = 0.0  # until a step is timed: a fraction of what caching its views took
     optimizer = AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     generator = torch.Generator().manual_seed(config.seed)
     start_state = _detached(model)
@@ -451,12 +458,12 @@ def optimize(
 
     history: list[dict] = []
     step, loss_value, stopped_by = 0, math.nan, "steps"
-    if step_seconds is None:  # not even the first step fits
+    if not trainable:  # not even the first step's views could be cached in time
         stopped_by = "time budget"
     lr_scale, backtracks, check_at = 1.0, 0, -1  # check_at: a validation backtracking asks for
     validated_step, first_step = -1, math.nan
     loop_start, schedule = time.perf_counter(), config.schedule
-    while step_seconds is not None and step < config.steps:
+    while trainable and step < config.steps:
         controller.wait_while_paused()
         if controller.stopped:
             stopped_by = "stopped"

@@ -1,5 +1,6 @@
 """The optimisation loop and method `direct` on a small procedural mesh."""
 
+import math
 import threading
 import time
 
@@ -18,6 +19,7 @@ from geoscaler.optimize import (
     OptimizeConfig,
     _Best,
     optimize,
+    train_step,
 )
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
@@ -212,6 +214,40 @@ def test_the_l2_loss_on_the_objects_pixels_is_the_loss_of_the_full_render(scene)
         torch.testing.assert_close(view_loss(cache, view, [texture], None, 0.0), full)
 
 
+class _GradientRecorder:
+    """An optimiser that keeps the gradient of its one parameter instead of stepping."""
+
+    def __init__(self, parameter: torch.Tensor):
+        self.parameter, self.lr, self.gradient = parameter, 0.0, None
+
+    def zero_grad(self) -> None:
+        self.parameter.grad = None
+
+    def step(self) -> None:
+        self.gradient = self.parameter.grad.clone()
+
+
+def test_a_step_in_decibels_weighs_each_views_gradient_by_its_own_loss(scene):
+    # d/dx mean_v 10 log10(L_v) = mean_v (10 / ln 10) (dL_v / dx) / L_v
+    mesh, _, views = scene
+    cache = ViewCache(views["Q"], [(32, 32)], with_taps=True)
+    model = lanczos_model(mesh)
+    (parameter,) = model.parameters()
+    chosen = [0, 3]
+    expected = torch.zeros_like(parameter)
+    for view in chosen:
+        parameter.grad = None
+        textures, _ = model.candidate()
+        loss = view_loss(cache, view, textures, None, 0.0)
+        loss.backward()
+        expected += 10 / math.log(10) * parameter.grad / loss.item() / len(chosen)
+    recorder = _GradientRecorder(parameter)
+    config = small_config(loss_in_db=True)
+    reported = train_step(cache, model, recorder, chosen, config, lambda: 1.0)
+    torch.testing.assert_close(recorder.gradient, expected, rtol=1e-4, atol=1e-6)
+    assert reported > 0  # what is reported is the mean loss itself, not its decibels
+
+
 def test_cached_taps_give_the_renderers_gradient(scene):
     _, _, views = scene
     texture = torch.rand(32, 32, 3)
@@ -318,22 +354,38 @@ def test_the_loop_stops_when_what_must_follow_it_would_overrun_the_budget(scene)
     assert result.steps == 0 and result.stopped_by == "time budget" and result.best_step == 0
 
 
-def test_a_first_step_that_cannot_fit_in_the_budget_is_not_started(scene, monkeypatch):
-    # caching a view takes 0.25 s: once the first is cached, the 3 left (0.75 s) and a step
-    # as long as caching all 4 (1 s) do not fit in the 1.35 s left of a 1.6 s budget
-    mesh, renderer, views = scene
+def slow_caching(scene, monkeypatch, seconds: float) -> Renderer:
+    """The scene's renderer, caching each view ``seconds`` late."""
+    mesh, renderer, _ = scene
     slow = Renderer(mesh, "cpu", renderer.evaluation)
     cached_view = slow.cached_view
 
     def slow_view(camera):
-        time.sleep(0.25)
+        time.sleep(seconds)
         return cached_view(camera)
 
     monkeypatch.setattr(slow, "cached_view", slow_view)
-    validation = _Costing(views, output_sizes(mesh, SCALE), seconds=0.0)  # the step's cost alone
-    result = optimize(slow, lanczos_model(mesh), small_config(time_budget=1.6), validation)
+    return slow
+
+
+def test_a_first_step_that_cannot_fit_in_the_budget_is_not_started(scene, monkeypatch):
+    # caching a view takes 0.25 s: once the first is cached, the 3 left (0.75 s) do not fit
+    # in the 0.55 s left of a 0.8 s budget
+    mesh, _, views = scene
+    slow = slow_caching(scene, monkeypatch, 0.25)
+    validation = _Costing(views, output_sizes(mesh, SCALE), seconds=0.0)  # nothing after
+    result = optimize(slow, lanczos_model(mesh), small_config(time_budget=0.8), validation)
     assert result.training_views == 1
     assert result.steps == 0 and result.stopped_by == "time budget" and result.best_step == 0
+
+
+def test_a_first_step_whose_views_fit_is_taken_though_caching_them_took_longer(scene, monkeypatch):
+    # the 4 views take 1 s of a 1.6 s budget; a step from cached views takes far less
+    mesh, _, views = scene
+    slow = slow_caching(scene, monkeypatch, 0.25)
+    validation = _Costing(views, output_sizes(mesh, SCALE), seconds=0.0)
+    result = optimize(slow, lanczos_model(mesh), small_config(time_budget=1.6), validation)
+    assert result.training_views == 4 and result.steps >= 1
 
 
 def test_restoring_texels_gives_back_the_candidate_they_came_from(scene):
