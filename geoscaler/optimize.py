@@ -407,6 +407,7 @@ def optimize(
 
     best = _Best(validation)
     deadline = None if config.time_budget is None else start + config.time_budget
+    renderer.reference_textures()  # made once, before views are timed: not a view's cost
     caching = _Caching(train, validation, config, start, emit)
 
     def seconds_needed() -> float:
