@@ -326,6 +326,15 @@ class TapMatrix:
         return _TapProduct.apply(self, table)
 
 
+# torch warns once that sparse CSR support is in beta (the product used here is not): filtered by
+# its message, once, at import. ``warnings.catch_warnings`` around each matrix, as before, swaps
+# the process's filters, from the app's training thread too. The invariant check is declined
+# explicitly (``_csr`` builds valid indices), which is what silences torch's second warning.
+warnings.filterwarnings(
+    "ignore", message="Sparse CSR tensor support is in beta", category=UserWarning
+)
+
+
 def _csr(
     row: torch.Tensor, column: torch.Tensor, value: torch.Tensor, shape: tuple[int, int]
 ) -> torch.Tensor:
@@ -336,9 +345,7 @@ def _csr(
     counts = torch.bincount(row.long(), minlength=shape[0])
     crow = torch.zeros(shape[0] + 1, dtype=torch.int32, device=row.device)
     crow[1:] = torch.cumsum(counts, 0)
-    with warnings.catch_warnings():  # "sparse CSR support is in beta": the product is not
-        warnings.simplefilter("ignore", UserWarning)
-        return torch.sparse_csr_tensor(crow, column.int(), value, shape)
+    return torch.sparse_csr_tensor(crow, column.int(), value, shape, check_invariants=False)
 
 
 class _TapProduct(torch.autograd.Function):
