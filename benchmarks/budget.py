@@ -60,6 +60,8 @@ def run_downsample(mesh: Path, scale: int, budget: float, busy: bool, out: Path)
         if neighbour is not None:
             neighbour.kill()
             neighbour.wait()
+    log = out / f"{mesh.parent.name}_x{scale}_{budget:g}s_{'busy' if busy else 'idle'}.log"
+    log.write_text(done.stderr)  # the command's progress and messages, to read afterwards
     if done.returncode != 0:
         raise RuntimeError(f"{mesh} x{scale} {budget}s: {done.stderr.strip()[-500:]}")
     details = json.loads(report.read_text())["details"]

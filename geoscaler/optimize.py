@@ -44,7 +44,7 @@ from geoscaler.soft import SoftSettings
 from geoscaler.texture import fill_gutters, quantize_linear
 from geoscaler.uvmaps import reachable_masks
 from geoscaler.validation import Best as _Best
-from geoscaler.validation import Validation
+from geoscaler.validation import Validation, ViewCost
 from geoscaler.views import ViewCache, ViewSet, mip_chains, training_views
 
 TRAINING_RANGE = (1.5, 4.2)
@@ -277,7 +277,7 @@ class _Caching:
     ):
         self.train, self.validation, self.config = train, validation, config
         self.start, self.emit = start, emit
-        self.view_seconds = 0.0  # the costliest training view cached so far
+        self.view_cost = ViewCost()
         self.deadline = None
         if config.time_budget is not None:
             self.deadline = start + CACHING_SHARE * config.time_budget
@@ -291,7 +291,7 @@ class _Caching:
         if not self.pool.cache_next():
             return False
         self.train.find_taps(len(self.pool) - 1)
-        self.view_seconds = max(self.view_seconds, time.perf_counter() - started)
+        self.view_cost.add(time.perf_counter() - started)
         return True
 
     def _cache_one(self) -> bool:
@@ -303,11 +303,11 @@ class _Caching:
 
     def until_trainable(self, fits: Callable[[float], bool]) -> bool:
         """Cache the training views the first step needs while ``fits(seconds)`` says that
-        caching the rest of them (at the costliest one's price so far) still fits the budget;
+        caching the rest of them (at the mean price of those cached so far) still fits the budget;
         False when they cannot all be cached in time."""
         needed = min(self.config.views_per_step, len(self.pool.cameras))
         while len(self.pool) < needed:
-            if not fits(self.view_seconds * (needed - len(self.pool))):
+            if not fits(self.view_cost.mean * (needed - len(self.pool))):
                 return False
             if not self._cache_pool_view():
                 break
@@ -412,7 +412,7 @@ def optimize(
 
     def seconds_needed() -> float:
         owed = 1 + (not best.has_start)  # the last state, and the start if not yet validated
-        view_seconds = caching.view_seconds  # a validation view's cost, before one is cached
+        view_seconds = caching.view_cost.mean  # a validation view's cost, before one is cached
         return 1.5 * validation.seconds_needed(owed, True, view_seconds) + reserve
 
     def fits(seconds: float) -> bool:

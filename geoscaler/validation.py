@@ -107,6 +107,24 @@ def validation_view_sets(renderer: Renderer, guard_views: int = GUARD_VIEWS) -> 
     return {name: ViewSet(renderer, cams, eager=False) for name, cams in cameras.items()}
 
 
+class ViewCost:
+    """Seconds per cached view, averaged over the views timed so far: what each view still to
+    cache is costed at. The mean, not the costliest: a budget is spent on many views, and one
+    slow view (a frame-filling close-up, a page fault) says little about the rest."""
+
+    def __init__(self) -> None:
+        self.total, self.views = 0.0, 0
+
+    def add(self, seconds: float) -> None:
+        self.total += seconds
+        self.views += 1
+
+    @property
+    def mean(self) -> float:
+        """Mean seconds per view; 0.0 before a view is timed."""
+        return self.total / self.views if self.views else 0.0
+
+
 class Validation:
     """The validation sets of one output size, the baselines and their floor.
 
@@ -138,7 +156,7 @@ class Validation:
         self.scorings_after = scorings_after
         self.counts: dict[str, int] | None = None
         self._baseline_scores: dict[str, Scores] | None = None
-        self._view_seconds = 0.0  # the costliest view cached so far
+        self._view_cost = ViewCost()
         self._render_seconds = 0.0  # a candidate's render in one view, as last measured
         self._metric_seconds = 0.0  # the protocol metrics of one view, as last measured
         self._q_metrics: dict[bytes, dict[str, float]] = {}  # validated candidates' Q metrics
@@ -175,7 +193,7 @@ class Validation:
         cache = self.sets[name]
         cache.views.cache_next()
         cache.find_taps(len(cache) - 1)
-        self._view_seconds = max(self._view_seconds, time.perf_counter() - started)
+        self._view_cost.add(time.perf_counter() - started)
         if not self._render_seconds:
             self._measure(cache)
         return True
@@ -306,7 +324,7 @@ class Validation:
         seconds += q_views * (validations + self.scorings_after) * self._metric_seconds
         if caching and not self.frozen:
             missing = (max(MIN_FROZEN.get(n, 1) - len(c), 0) for n, c in self.sets.items())
-            seconds += (self._view_seconds or view_seconds) * sum(missing)
+            seconds += (self._view_cost.mean or view_seconds) * sum(missing)
         return seconds
 
     @torch.no_grad()

@@ -354,14 +354,27 @@ def test_the_loop_stops_when_what_must_follow_it_would_overrun_the_budget(scene)
     assert result.steps == 0 and result.stopped_by == "time budget" and result.best_step == 0
 
 
-def slow_caching(scene, monkeypatch, seconds: float) -> Renderer:
-    """The scene's renderer, caching each view ``seconds`` late."""
+class _CostingViews(Validation):
+    """A validation whose remaining work is ``views`` views at the price it is given."""
+
+    def __init__(self, views, sizes, count: int):
+        super().__init__(views, sizes)
+        self.count = count
+
+    def seconds_needed(self, validations, caching, view_seconds=0.0):
+        return self.count * view_seconds
+
+
+def slow_caching(scene, monkeypatch, seconds: float | list[float]) -> Renderer:
+    """The scene's renderer, caching each view ``seconds`` late (or the n-th view
+    ``seconds[n]`` late)."""
     mesh, renderer, _ = scene
     slow = Renderer(mesh, "cpu", renderer.evaluation)
     cached_view = slow.cached_view
+    delays = iter(seconds) if isinstance(seconds, list) else None
 
     def slow_view(camera):
-        time.sleep(seconds)
+        time.sleep(seconds if delays is None else next(delays, 0.0))
         return cached_view(camera)
 
     monkeypatch.setattr(slow, "cached_view", slow_view)
@@ -387,6 +400,17 @@ def test_a_first_step_whose_views_fit_is_taken_though_caching_them_took_longer(s
     validation = _Costing(views, output_sizes(mesh, SCALE), seconds=0.0)
     result = optimize(slow, lanczos_model(mesh), small_config(time_budget=6.0), validation)
     assert result.training_views == 4 and result.steps >= 1
+
+
+def test_one_slow_view_does_not_price_every_view_still_to_cache(scene, monkeypatch):
+    # 3 views at 0.05 s and one at 0.6 s; 7 views still to cache after the loop. Priced at the
+    # costliest (7 * 0.6 * 1.5 = 6.3 s) they would overrun a 4 s budget and stop the job
+    # before its first step; at the mean (0.19 s a view: 2 s) they fit.
+    mesh, _, views = scene
+    slow = slow_caching(scene, monkeypatch, [0.05, 0.05, 0.05, 0.6])
+    validation = _CostingViews(views, output_sizes(mesh, SCALE), count=7)
+    result = optimize(slow, lanczos_model(mesh), small_config(time_budget=4.0), validation)
+    assert result.training_views >= 4 and result.steps >= 1
 
 
 def test_restoring_texels_gives_back_the_candidate_they_came_from(scene):

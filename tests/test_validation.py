@@ -18,6 +18,7 @@ from geoscaler.validation import (
     GUARD_VIEWS,
     Scores,
     Validation,
+    ViewCost,
     guard_cameras,
     paired_gap,
     validation_view_sets,
@@ -120,12 +121,21 @@ def test_a_candidate_clears_a_set_by_its_per_view_gains_less_one_standard_error(
     assert paired_gap({"far": 59.0}, floor, "far") == -1.0  # means alone: their difference
 
 
+def test_views_still_to_cache_are_costed_at_the_mean_of_those_timed():
+    cost = ViewCost()
+    assert cost.mean == 0.0  # nothing timed yet
+    for seconds in (0.25, 0.25, 1.0):  # one slow view among fast ones
+        cost.add(seconds)
+    assert cost.mean == 0.5
+
+
 def test_the_budget_counts_the_validations_owed_in_views(small):
     validation = _validation(small, baselines={"lanczos": [None]}, scorings_after=2)
     assert validation.seconds_needed(1, caching=True) == 0.0  # nothing measured yet
     validation.cache_next()
     # What was measured on the first view, set to round figures to check the arithmetic:
-    validation._render_seconds, validation._metric_seconds, validation._view_seconds = 1, 3, 10
+    validation._render_seconds, validation._metric_seconds = 1, 3
+    validation._view_cost.total, validation._view_cost.views = 10.0, 1
     # 1 view now (Q's); 1 own validation + 1 baseline's = 2 renders of it at 1, and Q's metrics
     # at 3 for each of them and for the 2 scorings after (which reuse the renders); while not
     # frozen, freezing must still cache 2 + 2 + 2 views.
