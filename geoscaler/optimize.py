@@ -51,6 +51,12 @@ TRAINING_RANGE = (1.5, 4.2)
 """The loop's default training distances: wider than the protocol's range S on both sides, so
 the texture holds up from the near robustness set (1.5, magnified texels) to the far one (4.0,
 where coarser mip levels of the candidate are shown). See the README's "training range" note."""
+FINISH_MARGIN = 1.5
+"""Factor on the estimate of what must follow the loop (validations, the views they still
+need, the caller's scoring) before each step after the first. The first step is taken when
+the estimate itself fits: without that step the job ships its start, a far larger loss than an
+overrun of the budget's tolerance (10 %) when the estimate runs long; a later step adds little,
+so it keeps the margin."""
 CACHING_SHARE = 0.4
 """Under a time budget, views are cached within this share of it: then the training pool stops
 growing and the validation sets freeze at what is cached."""
@@ -98,8 +104,10 @@ class OptimizeConfig:
         backtrack: with a factor f (< 1), a validated candidate that ranks below the best so
             far sends the model back to the best (``Restorable.restore``), multiplies the
             learning rate by f and validates again after ``validate_every * f`` steps; with
-            it the candidate is also validated as the validation sets freeze, so that a step
-            size that hurts is found early (None: no backtracking).
+            it the candidate is also validated as the validation sets freeze (not before step
+            ``validate_every * f``: Adam's first steps move every texel by about the rate,
+            whatever its gradient, so an earlier candidate says little about the rate), so
+            that a step size that hurts is found early (None: no backtracking).
         weight_decay: AdamW weight decay.
         ssim_weight: weight of ``1 - SSIM`` beside the L2 term.
         loss_in_db: the step minimises the mean of its views' ``10 log10(loss)`` (each view's
@@ -410,16 +418,19 @@ def optimize(
     renderer.reference_textures()  # made once, before views are timed: not a view's cost
     caching = _Caching(train, validation, config, start, emit)
 
-    def seconds_needed() -> float:
+    def seconds_needed(margin: float) -> float:
         owed = 1 + (not best.has_start)  # the last state, and the start if not yet validated
         view_seconds = caching.view_cost.mean  # a validation view's cost, before one is cached
-        return 1.5 * validation.seconds_needed(owed, True, view_seconds) + reserve
+        return margin * validation.seconds_needed(owed, True, view_seconds) + reserve
 
-    def fits(seconds: float) -> bool:
-        """``seconds`` of work, then what must follow the loop, fit in the budget."""
-        return deadline is None or time.perf_counter() + seconds + seconds_needed() <= deadline
+    def fits(seconds: float, margin: float = 1.0) -> bool:
+        """``seconds`` of work, then what must follow the loop (its estimate times
+        ``margin``), fit in the budget."""
+        if deadline is None:
+            return True
+        return time.perf_counter() + seconds + seconds_needed(margin) <= deadline
 
-    trainable = caching.until_trainable(fits)
+    trainable = caching.until_trainable(fits)  # the first step's views: no margin
     step_seconds = 0.0  # until a step is timed: a fraction of what caching its views took
     optimizer = AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     generator = torch.Generator().manual_seed(config.seed)
@@ -462,6 +473,7 @@ def optimize(
     if not trainable:  # not even the first step's views could be cached in time
         stopped_by = "time budget"
     lr_scale, backtracks, check_at = 1.0, 0, -1  # check_at: a validation backtracking asks for
+    recheck = max(round(config.validate_every * (config.backtrack or 0)), 1)
     validated_step, first_step = -1, math.nan
     loop_start, schedule = time.perf_counter(), config.schedule
     while trainable and step < config.steps:
@@ -470,7 +482,7 @@ def optimize(
             stopped_by = "stopped"
             break
         step_start = time.perf_counter()
-        if not fits(step_seconds):
+        if not fits(step_seconds, 1.0 if step == 0 else FINISH_MARGIN):
             stopped_by = "time budget"
             break
         views = torch.randperm(len(train), generator=generator)[: config.views_per_step]
@@ -513,7 +525,7 @@ def optimize(
         if not best.has_start:
             validate_start()
             if config.backtrack is not None:  # is the step size hurting already?
-                check_at = step
+                check_at = max(step, recheck)
         if step % config.validate_every == 0 or step == config.steps or step == check_at:
             finished = finished_candidate(model, reachable())
             scores = validate(validation, finished)
@@ -525,7 +537,7 @@ def optimize(
                 optimizer = AdamW(model.parameters(), weight_decay=config.weight_decay)
                 lr_scale *= config.backtrack
                 backtracks += 1
-                check_at = step + max(round(config.validate_every * config.backtrack), 1)
+                check_at = step + recheck
                 history[-1]["backtrack"] = lr_scale
             if not improved and config.patience is not None and best.stale >= config.patience:
                 stopped_by = "plateau"
