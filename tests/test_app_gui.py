@@ -28,6 +28,9 @@ from geoscaler.methods.direct import DEFAULT_CONFIG
 from geoscaler.procedural import demo_mesh
 
 DOCS_SCREENSHOT = Path(__file__).resolve().parents[1] / "docs" / "app.png"
+SESSION_SECONDS = 300.0
+"""Seconds the session may take: its waits add up to 220 at most (90 + 30 + 30 + 60 + 10),
+the rest takes a few."""
 
 
 def crop(path: Path, rect: tuple[float, float, float, float]) -> np.ndarray:
@@ -113,6 +116,12 @@ def test_a_session_in_the_app(gui_runner, tmp_path):
             seen["first validation"] = (app.plots.validation_limits, app.progress.bicubic_psnr)
 
     def session(ctx) -> None:
+        from imgui_bundle import hello_imgui, imgui
+
+        # The engine kills a test after 60 s by default, which would cut the waits below short
+        # on a slow or busy machine: it may take as long as they allow.
+        engine_io = imgui.test_engine.get_io(hello_imgui.get_imgui_test_engine())
+        engine_io.config_watchdog_kill_test = SESSION_SECONDS
         ctx.yield_(3)
         testing.capture(ctx, str(shots["start"]))
         seen["rects"] = dict(app.views.rects)
