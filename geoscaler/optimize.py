@@ -53,10 +53,9 @@ the texture holds up from the near robustness set (1.5, magnified texels) to the
 where coarser mip levels of the candidate are shown). See the README's "training range" note."""
 FINISH_MARGIN = 1.5
 """Factor on the estimate of what must follow the loop (validations, the views they still
-need, the caller's scoring) before each step after the first. The first step is taken when
-the estimate itself fits: without that step the job ships its start, a far larger loss than an
-overrun of the budget's tolerance (10 %) when the estimate runs long; a later step adds little,
-so it keeps the margin."""
+need, the caller's scoring) before every step, the first included. Without it for the first
+step (commit 5532119, 15 s budgets) the mug, the lego and the peach made one step each instead
+of none, which gained nothing worth having, and the peach's busy run overran its budget by 14%."""
 CACHING_SHARE = 0.4
 """Under a time budget, views are cached within this share of it: then the training pool stops
 growing and the validation sets freeze at what is cached."""
@@ -104,10 +103,8 @@ class OptimizeConfig:
         backtrack: with a factor f (< 1), a validated candidate that ranks below the best so
             far sends the model back to the best (``Restorable.restore``), multiplies the
             learning rate by f and validates again after ``validate_every * f`` steps; with
-            it the candidate is also validated as the validation sets freeze (not before step
-            ``validate_every * f``: Adam's first steps move every texel by about the rate,
-            whatever its gradient, so an earlier candidate says little about the rate), so
-            that a step size that hurts is found early (None: no backtracking).
+            it the candidate is also validated as the validation sets freeze, so that a step
+            size that hurts is found early (None: no backtracking).
         weight_decay: AdamW weight decay.
         ssim_weight: weight of ``1 - SSIM`` beside the L2 term.
         loss_in_db: the step minimises the mean of its views' ``10 log10(loss)`` (each view's
@@ -418,19 +415,16 @@ def optimize(
     renderer.reference_textures()  # made once, before views are timed: not a view's cost
     caching = _Caching(train, validation, config, start, emit)
 
-    def seconds_needed(margin: float) -> float:
+    def seconds_needed() -> float:
         owed = 1 + (not best.has_start)  # the last state, and the start if not yet validated
         view_seconds = caching.view_cost.mean  # a validation view's cost, before one is cached
-        return margin * validation.seconds_needed(owed, True, view_seconds) + reserve
+        return FINISH_MARGIN * validation.seconds_needed(owed, True, view_seconds) + reserve
 
-    def fits(seconds: float, margin: float = 1.0) -> bool:
-        """``seconds`` of work, then what must follow the loop (its estimate times
-        ``margin``), fit in the budget."""
-        if deadline is None:
-            return True
-        return time.perf_counter() + seconds + seconds_needed(margin) <= deadline
+    def fits(seconds: float) -> bool:
+        """``seconds`` of work, then what must follow the loop, fit in the budget."""
+        return deadline is None or time.perf_counter() + seconds + seconds_needed() <= deadline
 
-    trainable = caching.until_trainable(fits)  # the first step's views: no margin
+    trainable = caching.until_trainable(fits)
     step_seconds = 0.0  # until a step is timed: a fraction of what caching its views took
     optimizer = AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     generator = torch.Generator().manual_seed(config.seed)
@@ -473,7 +467,6 @@ def optimize(
     if not trainable:  # not even the first step's views could be cached in time
         stopped_by = "time budget"
     lr_scale, backtracks, check_at = 1.0, 0, -1  # check_at: a validation backtracking asks for
-    recheck = max(round(config.validate_every * (config.backtrack or 0)), 1)
     validated_step, first_step = -1, math.nan
     loop_start, schedule = time.perf_counter(), config.schedule
     while trainable and step < config.steps:
@@ -482,7 +475,7 @@ def optimize(
             stopped_by = "stopped"
             break
         step_start = time.perf_counter()
-        if not fits(step_seconds, 1.0 if step == 0 else FINISH_MARGIN):
+        if not fits(step_seconds):
             stopped_by = "time budget"
             break
         views = torch.randperm(len(train), generator=generator)[: config.views_per_step]
@@ -525,7 +518,7 @@ def optimize(
         if not best.has_start:
             validate_start()
             if config.backtrack is not None:  # is the step size hurting already?
-                check_at = max(step, recheck)
+                check_at = step
         if step % config.validate_every == 0 or step == config.steps or step == check_at:
             finished = finished_candidate(model, reachable())
             scores = validate(validation, finished)
@@ -537,7 +530,7 @@ def optimize(
                 optimizer = AdamW(model.parameters(), weight_decay=config.weight_decay)
                 lr_scale *= config.backtrack
                 backtracks += 1
-                check_at = step + recheck
+                check_at = step + max(round(config.validate_every * config.backtrack), 1)
                 history[-1]["backtrack"] = lr_scale
             if not improved and config.patience is not None and best.stale >= config.patience:
                 stopped_by = "plateau"

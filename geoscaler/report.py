@@ -26,7 +26,6 @@ from geoscaler.render import Renderer, image_to_uint8
 from geoscaler.rows import texture_facts
 from geoscaler.shipping import ShippedMap
 from geoscaler.sizes import TEXTURE_CLASSES
-from geoscaler.validation import FLOOR_MARGIN
 from geoscaler.views import ViewSet
 
 
@@ -269,7 +268,8 @@ def _validation_lines(method: str, details: dict[str, Any]) -> list[str]:
         lines.append(
             f"shipped {shipped}: {method}'s own result fell {-details['shortfall_db']:.2f} dB "
             f"short of clearing the best filter on its worst validation set (its mean gain "
-            f"view by view, less {FLOOR_MARGIN:g} standard error) and {shipped} fell less, so "
+            f"view by view, less a standard error or more, by the views' count) and {shipped} "
+            f"fell less, so "
             f"the output is {shipped}'s texture; give the method more steps or time"
         )
     return lines

@@ -382,14 +382,13 @@ def slow_caching(scene, monkeypatch, seconds: float | list[float]) -> Renderer:
     return slow
 
 
-def test_the_first_step_needs_the_estimate_to_fit_and_later_steps_need_its_margin(scene):
-    # 15 s must follow the loop in a 20 s budget: the first step fits (15 s from a start
-    # well inside 5 s), the second does not (15 s * FINISH_MARGIN = 22.5 s)
+def test_the_loop_keeps_a_margin_on_what_must_follow_it(scene):
+    # 15 s must follow the loop in a 20 s budget: it would fit, not with its margin (22.5 s)
     mesh, renderer, views = scene
     validation = _Costing(views, output_sizes(mesh, SCALE), seconds=15.0)
     result = optimize(renderer, lanczos_model(mesh), small_config(time_budget=20.0), validation)
     assert FINISH_MARGIN * 15.0 > 20.0
-    assert result.steps == 1 and result.stopped_by == "time budget"
+    assert result.steps == 0 and result.stopped_by == "time budget"
 
 
 def test_a_first_step_that_cannot_fit_in_the_budget_is_not_started(scene, monkeypatch):
@@ -415,8 +414,8 @@ def test_a_first_step_whose_views_fit_is_taken_though_caching_them_took_longer(s
 
 def test_one_slow_view_does_not_price_every_view_still_to_cache(scene, monkeypatch):
     # 3 views at 0.05 s and one at 0.6 s; 7 views still to cache after the loop. Priced at the
-    # costliest (7 * 0.6 = 4.2 s) they would overrun a 4 s budget and stop the job before its
-    # first step; at the mean (0.19 s a view: 1.3 s) they fit.
+    # costliest (7 * 0.6 * FINISH_MARGIN = 6.3 s) they would overrun a 4 s budget and stop the
+    # job before its first step; at the mean (0.19 s a view: 2 s) they fit.
     mesh, _, views = scene
     slow = slow_caching(scene, monkeypatch, [0.05, 0.05, 0.05, 0.6])
     validation = _CostingViews(views, output_sizes(mesh, SCALE), count=7)
@@ -438,12 +437,11 @@ def test_restoring_texels_gives_back_the_candidate_they_came_from(scene):
 def test_a_candidate_that_validates_worse_sends_the_loop_back_to_its_best_at_a_lower_rate(scene):
     # A rate of 50 ruins the texture in a step: each validation after the start's ranks below
     # it, sends the texels back to the start and quarters the rate, until the rate helps. The
-    # first comes 10 * 0.25 = 2 steps in (the sets froze after step 1: too early to judge a
-    # rate), each next one 2 steps later.
-    result = run(scene, steps=10, lr=50.0, warmup_steps=1, backtrack=0.25)
+    # first comes as the sets freeze (after step 1), each next one 10 * 0.25 = 2 steps later.
+    result = run(scene, steps=8, lr=50.0, warmup_steps=1, backtrack=0.25)
     backtracked = [(h["step"], h["backtrack"]) for h in result.history if "backtrack" in h]
-    assert backtracked == [(2, 0.25), (4, 0.0625), (6, 0.015625), (8, 0.00390625)]
-    assert result.backtracks == 4 and result.best_step == 10
+    assert backtracked == [(1, 0.25), (3, 0.0625), (5, 0.015625), (7, 0.00390625)]
+    assert result.backtracks == 4 and result.best_step == 8
     start = run(scene, steps=0)  # the start, finished and validated alone
     assert result.best_psnr > start.best_psnr
     without = run(scene, steps=8, lr=50.0, warmup_steps=1)

@@ -14,11 +14,12 @@ from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, Evaluation
 from geoscaler.render import Renderer
 from geoscaler.texture import texture_to_linear
 from geoscaler.validation import (
-    FLOOR_MARGIN,
+    FLOOR_CONFIDENCE,
     GUARD_VIEWS,
     Scores,
     Validation,
     ViewCost,
+    floor_margin,
     guard_cameras,
     paired_gap,
     validation_view_sets,
@@ -104,14 +105,27 @@ def test_the_floor_is_the_best_filter_on_each_set_and_the_rank_puts_clearing_it_
     assert validation.shortfall(scores[best]) == 0.0  # the floor's baseline, paired with itself
 
 
-def test_a_candidate_clears_a_set_by_its_per_view_gains_less_one_standard_error():
+def test_the_floor_margin_is_students_t_at_one_standard_errors_confidence():
+    assert FLOOR_CONFIDENCE == pytest.approx(0.841345, abs=1e-6)  # P(Z < 1)
+    p = FLOOR_CONFIDENCE
+    assert floor_margin(2) == pytest.approx(math.tan(math.pi * (p - 0.5)))  # 1 degree: Cauchy
+    assert floor_margin(3) == pytest.approx((2 * p - 1) / math.sqrt(2 * p * (1 - p)))
+    assert floor_margin(2) > floor_margin(3) > floor_margin(20) > 1.0
+    assert floor_margin(100_000) == pytest.approx(1.0, abs=1e-4)  # many views: one error
+
+
+def test_a_candidate_clears_a_set_by_its_per_view_gains_less_their_margin():
     floor = Scores({"far": 60.0}, {"far": np.array([60.0, 61.0, 59.0, 60.0])})
     steady = Scores({"far": 60.5}, {"far": np.array([60.5, 61.5, 59.5, 60.5])})
     assert paired_gap(steady, floor, "far") == pytest.approx(0.5)  # no spread: the mean gain
     # Gains +3, -2, +3, -2: mean +0.5, standard deviation sqrt(25/3), standard error /2.
     noisy = Scores({"far": 60.5}, {"far": np.array([63.0, 59.0, 62.0, 58.0])})
-    assert paired_gap(noisy, floor, "far") == pytest.approx(0.5 - math.sqrt(25 / 3) / 2)
-    assert FLOOR_MARGIN == 1.0
+    error = math.sqrt(25 / 3) / 2
+    assert paired_gap(noisy, floor, "far") == pytest.approx(0.5 - floor_margin(4) * error)
+    # Two views gaining +1.0 and +0.2: one standard error (0.4) would pass them; 1.84 do not.
+    two = Scores({"far": 61.0}, {"far": np.array([61.0, 61.2, math.nan, math.nan])})
+    assert paired_gap(two, floor, "far") == pytest.approx(0.6 - floor_margin(2) * 0.4)
+    assert paired_gap(two, floor, "far") < 0
     # A view without foreground (nan) says nothing; one view left: its gain.
     one = Scores({"far": 61.0}, {"far": np.array([61.0, math.nan, math.nan, math.nan])})
     assert paired_gap(one, floor, "far") == pytest.approx(1.0)
