@@ -269,8 +269,7 @@ def _validation_lines(method: str, details: dict[str, Any]) -> list[str]:
             f"shipped {shipped}: {method}'s own result fell {-details['shortfall_db']:.2f} dB "
             f"short of clearing the best filter on its worst validation set (its mean gain "
             f"view by view, less a standard error or more, by the views' count) and {shipped} "
-            f"fell less, so "
-            f"the output is {shipped}'s texture; give the method more steps or time"
+            f"fell less, so the output is {shipped}'s texture; give the method more steps or time"
         )
     return lines
 
