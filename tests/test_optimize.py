@@ -356,7 +356,7 @@ def test_the_loop_stops_when_what_must_follow_it_would_overrun_the_budget(scene)
 
 
 class _CostingViews(Validation):
-    """A validation whose remaining work is ``views`` views at the price it is given."""
+    """A validation whose remaining work is ``count`` views at the price it is given."""
 
     def __init__(self, views, sizes, count: int):
         super().__init__(views, sizes)
