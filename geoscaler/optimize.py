@@ -425,7 +425,8 @@ def optimize(
         return deadline is None or time.perf_counter() + seconds + seconds_needed() <= deadline
 
     trainable = caching.until_trainable(fits)
-    step_seconds = 0.0  # until a step is timed: a fraction of what caching its views took
+    # Until a step is timed, 0: a step from cached views costs a fraction of caching them.
+    step_seconds = 0.0
     optimizer = AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     generator = torch.Generator().manual_seed(config.seed)
     start_state = _detached(model)
