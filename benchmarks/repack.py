@@ -9,12 +9,13 @@ repacked layout is planned on training views only.
 
 Usage:
     python benchmarks/repack.py [PATH ...] [--scale 4 8] [--time-budget 60]
-        [--distance 2.4 [1.5 4.0]] [--device cpu] [--json OUT.json]
+        [--methods bicubic direct bake repack auto] [--distance 2.4 [1.5 4.0]]
+        [--device cpu] [--json OUT.json]
 
 PATH: mesh files or folders (default: ../shared/data; a missing folder skips cleanly).
 Prints per mesh and scale the PSNR-fg of bicubic on each view set and the gains over it, k
 (linear texel density gain of the new layout, footprint-weighted), the vertex count change,
-each method's seconds, and what `--uv auto` chooses (and so ships: `direct` or repack).
+each learned method's seconds, and `--uv auto`'s gain with the layout its race chose.
 """
 
 from __future__ import annotations
@@ -40,14 +41,15 @@ from geoscaler.render import Renderer
 from geoscaler.sizes import SizeRule
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-METHODS = ["bicubic", "direct", "bake", "repack"]
+METHODS = ["bicubic", "direct", "bake", "repack", "auto"]
+LEARNED = ["direct", "repack", "auto"]
 
 
 def bake_alone(mesh, rule, options: MethodOptions, context: RunContext) -> MethodResult:
     """The new layout and the reference maps baked into it: repack + `direct`'s start."""
     renderer = context.renderer or Renderer(mesh, options.device)
     config = loop_config(DEFAULT_CONFIG, options, RunContext())
-    atlas, _ = plan_layout(mesh, rule, renderer, config, {})
+    atlas = plan_layout(mesh, rule, renderer, config, {})
     if not atlas.moved:
         return get_method("lanczos").run(mesh, rule, options, context)
     sizes = output_sizes_for(mesh, rule, renderer)
@@ -60,81 +62,108 @@ def bake_alone(mesh, rule, options: MethodOptions, context: RunContext) -> Metho
 def register_methods() -> None:
     register("bake", bake_alone, learned=False)
     direct = get_method("direct")
-    register("repack", direct.run, learned=True, settings={"uv": "repack"}, steps=direct.steps)
+    for mode in ("repack", "auto"):
+        register(mode, direct.run, learned=True, settings={"uv": mode}, steps=direct.steps)
 
 
-def mesh_rows(entry, scales, distances, budget: float, device: str) -> list[dict]:
+def mesh_rows(entry, scales, distances, methods, budget: float, device: str) -> list[dict]:
     """The rows of one mesh (:func:`geoscaler.bench.find_meshes`' entry), one per scale and
     view set."""
-    path = entry.path
-    mesh = load_mesh(path)
+    mesh = load_mesh(entry.path)
     renderer = Renderer(mesh, device)
     options = MethodOptions(device=device, time_budget=budget)
     started = time.perf_counter()
-    comparison = compare_mesh(mesh, scales, METHODS, distances, options, renderer)
+    comparison = compare_mesh(mesh, scales, methods, distances, options, renderer)
     rows = []
     for scale in scales:
-        repacked = comparison.outputs["repack", scale]
-        details = repacked.details
-        layout = details.get("layout", {})
-        uvs = repacked.uvs if repacked.uvs is not None else mesh.uvs
+        outputs = {m: comparison.outputs[m, scale] for m in methods if m in LEARNED + ["bake"]}
+        layouts = [o.details["layout"] for o in outputs.values() if "layout" in o.details]
+        layout = layouts[0] if layouts else {}
+        relaid = [o.uvs for o in outputs.values() if o.uvs is not None]
         for distance in distances:
             by = {
                 r["method"]: r
                 for r in comparison.rows
                 if r["scale"] == scale and r["distance"] == distance
             }
-            auto = "repack" if details.get("auto_choice") == "repack" else "direct"
-            rows.append(
-                {
-                    "mesh": entry.name,
-                    "scale": scale,
-                    "distance": distance,
-                    "bicubic": by["bicubic"]["psnr_fg"],
-                    **{f"{m}_gain": by[m]["gain_db"] for m in METHODS[1:]},
-                    "auto_gain": by[auto]["gain_db"],
-                    "auto_choice": auto,
-                    **{f"{m}_seconds": by[m]["seconds"] for m in METHODS[1:]},
-                    "repack_shipped": by["repack"]["shipped"],
-                    "k": layout.get("k", 1.0),
-                    "charts": layout.get("charts", 0),
-                    "kept": layout.get("kept", {}),
-                    "vertex_change": int(len(uvs) - len(mesh.uvs)),
-                    "start_psnr_training_views": details.get("start_psnr_training_views"),
-                }
-            )
+            row = {
+                "mesh": entry.name,
+                "scale": scale,
+                "distance": distance,
+                "bicubic": by["bicubic"]["psnr_fg"],
+                **{f"{m}_gain": by[m]["gain_db"] for m in methods if m != "bicubic"},
+                **{f"{m}_seconds": by[m]["seconds"] for m in methods if m in LEARNED},
+                **{f"{m}_shipped": by[m]["shipped"] for m in methods if m in LEARNED},
+                "k": layout.get("k", 1.0),
+                "charts": layout.get("charts", 0),
+                "kept": layout.get("kept", {}),
+                "vertex_change": int(len(relaid[0]) - len(mesh.uvs)) if relaid else 0,
+            }
+            if "auto" in outputs:
+                row["auto_layout"] = outputs["auto"].details.get("layout_used", "keep")
+                row["auto_race"] = outputs["auto"].details.get("race")
+            rows.append(row)
     print(f"# {entry.name}: {time.perf_counter() - started:.0f} s", file=sys.stderr)
     return rows
 
 
+def _gain(row: dict, method: str) -> str:
+    """A method's gain cell: what shipped in brackets when the job's floor rejected it, and
+    the layout ``auto`` went on with."""
+    if f"{method}_gain" not in row:
+        return "-"
+    cell = f"{row[f'{method}_gain']:+.2f}"
+    shipped = row.get(f"{method}_shipped", method)
+    notes = [] if shipped == method else [shipped]
+    if method == "auto":
+        notes.insert(0, row["auto_layout"])
+    return cell + (f" ({', '.join(notes)})" if notes else "")
+
+
 def table(rows: list[dict]) -> str:
     head = (
-        "| mesh | x | dist | bicubic | direct | bake | repack+direct | auto (choice) | k | "
-        "dV | s direct / repack |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | "
-        "---: | ---: | ---: |"
+        "| mesh | x | dist | bicubic | direct | bake | repack+direct | auto (layout) | k | "
+        "dV | s direct / repack / auto |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | "
+        "---: | ---: | ---: | ---: |"
     )
     lines = [head]
     for r in rows:
+        seconds = " / ".join(
+            f"{r[f'{m}_seconds']:.0f}" if f"{m}_seconds" in r else "-" for m in LEARNED
+        )
         lines.append(
             f"| {r['mesh']} | {r['scale']} | {r['distance']:g} | {r['bicubic']:.2f} | "
-            f"{r['direct_gain']:+.2f} | {r['bake_gain']:+.2f} | {r['repack_gain']:+.2f}"
-            f"{'' if r['repack_shipped'] == 'repack' else ' (' + r['repack_shipped'] + ')'} | "
-            f"{r['auto_gain']:+.2f} ({r['auto_choice']}) | {r['k']:.2f} | "
-            f"{r['vertex_change']:+d} | {r['direct_seconds']:.0f} / {r['repack_seconds']:.0f} |"
+            f"{_gain(r, 'direct')} | {_gain(r, 'bake')} | {_gain(r, 'repack')} | "
+            f"{_gain(r, 'auto')} | {r['k']:.2f} | {r['vertex_change']:+d} | {seconds} |"
         )
     for scale in sorted({r["scale"] for r in rows}):
         for distance in sorted({r["distance"] for r in rows}):
             part = [r for r in rows if r["scale"] == scale and r["distance"] == distance]
-            keys = ("bicubic", "direct_gain", "bake_gain", "repack_gain", "auto_gain", "k")
-            mean = {k: statistics.fmean(r[k] for r in part) for k in keys}
-            below = sum(r["auto_gain"] < r["direct_gain"] - 1e-9 for r in part)
-            lines.append(
-                f"| **mean of {len(part)}** | {scale} | {distance:g} | {mean['bicubic']:.2f} | "
-                f"{mean['direct_gain']:+.2f} | {mean['bake_gain']:+.2f} | "
-                f"{mean['repack_gain']:+.2f} | {mean['auto_gain']:+.2f} ({below} below direct) "
-                f"| {mean['k']:.2f} | | |"
-            )
+            lines.append(_mean_line(part, scale, distance))
     return "\n".join(lines)
+
+
+def _mean_line(part: list[dict], scale: int, distance: float) -> str:
+    """The table's mean row of one scale and distance, with how often auto fell below direct
+    and the worst mesh's gain per method."""
+    cells = []
+    for method in ("direct", "bake", "repack", "auto"):
+        key = f"{method}_gain"
+        if key not in part[0]:
+            cells.append("-")
+            continue
+        values = [r[key] for r in part]
+        cells.append(f"{statistics.fmean(values):+.2f} (worst {min(values):+.2f})")
+    if "auto_gain" in part[0] and "direct_gain" in part[0]:
+        below = sum(r["auto_gain"] < r["direct_gain"] - 1e-9 for r in part)
+        worst = min(r["auto_gain"] - r["direct_gain"] for r in part)
+        cells[-1] += f", {below} below direct (by at most {max(-worst, 0):.3f})"
+    bicubic = statistics.fmean(r["bicubic"] for r in part)
+    k = statistics.fmean(r["k"] for r in part)
+    return (
+        f"| **mean of {len(part)}** | {scale} | {distance:g} | {bicubic:.2f} | "
+        f"{' | '.join(cells)} | {k:.2f} | | |"
+    )
 
 
 def layout_figure(entry, scale: int, out: Path, device: str) -> Path:
@@ -165,6 +194,7 @@ def main() -> int:
     parser.add_argument("paths", nargs="*", type=Path)
     parser.add_argument("--scale", type=int, nargs="+", default=[4, 8])
     parser.add_argument("--distance", type=float, nargs="+", default=[2.4])
+    parser.add_argument("--methods", nargs="+", choices=METHODS, default=METHODS)
     parser.add_argument("--time-budget", type=float, default=60.0)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--json", type=Path)
@@ -183,7 +213,10 @@ def main() -> int:
         return 0
     rows = []
     for path in find_meshes([p for p in paths if p.exists()]):
-        rows.extend(mesh_rows(path, args.scale, args.distance, args.time_budget, args.device))
+        methods = ["bicubic", *(m for m in args.methods if m != "bicubic")]
+        rows.extend(
+            mesh_rows(path, args.scale, args.distance, methods, args.time_budget, args.device)
+        )
         print(table(rows[-len(args.scale) * len(args.distance) :]), flush=True)
         if args.json:
             args.json.write_text(json.dumps(rows, indent=1, default=float))

@@ -44,7 +44,7 @@ from geoscaler.soft import SoftSettings
 from geoscaler.texture import fill_gutters, quantize_linear
 from geoscaler.uvmaps import reachable_masks
 from geoscaler.validation import Best as _Best
-from geoscaler.validation import Validation, ViewCost
+from geoscaler.validation import Scores, Validation, ViewCost
 from geoscaler.views import ViewCache, ViewSet, mip_chains, training_views
 
 TRAINING_RANGE = (1.5, 4.2)
@@ -363,6 +363,8 @@ def optimize(
     training_cameras: Sequence[Camera] | None = None,
     started_at: float | None = None,
     reserve: float = 0.0,
+    pool: ViewCache | None = None,
+    start_scores: Scores | None = None,
 ) -> OptimizeResult:
     """Optimise ``model`` so that renders of its candidate match renders of the original.
 
@@ -384,6 +386,10 @@ def optimize(
         started_at: the ``time.perf_counter()`` the time budget counts from (default: now), so
             that the job's and the method's set-up count too.
         reserve: seconds the caller needs after the loop returns (under a budget).
+        pool: the training pool to train on and grow to its cameras (default: a new one over
+            ``training_cameras``): an earlier loop's keeps its cached views and taps.
+        start_scores: the validation scores of the model's start, when an earlier loop on the
+            same validation validated it (it is not validated again).
 
     Returns:
         The best validated candidate (detached) by :meth:`Validation.rank`: the best on Q of
@@ -393,11 +399,13 @@ def optimize(
     start = time.perf_counter() if started_at is None else started_at
     controller = controller or Controller()
     emit = on_event or (lambda event: None)
-    cameras = training_cameras or sample_training_cameras(
-        config.pool_views, config.seed, config.distances
-    )
-    soft = config.soft if config.training_renderer == "soft" else None
-    train = training_views(renderer, cameras, validation.sizes, keeps_uvs, soft)
+    if pool is None:
+        cameras = training_cameras or sample_training_cameras(
+            config.pool_views, config.seed, config.distances
+        )
+        soft = config.soft if config.training_renderer == "soft" else None
+        pool = training_views(renderer, cameras, validation.sizes, keeps_uvs, soft)
+    train, cameras = pool, pool.views.cameras
     validating = [camera for cache in validation.sets.values() for camera in cache.views.cameras]
     farthest = max(camera.distance for camera in (*cameras, *validating))
 
@@ -416,7 +424,7 @@ def optimize(
     caching = _Caching(train, validation, config, start, emit)
 
     def seconds_needed() -> float:
-        owed = 1 + (not best.has_start)  # the last state, and the start if not yet validated
+        owed = 1 + (not best.has_start and start_scores is None)  # the last, and the start
         view_seconds = caching.view_cost.mean  # a validation view's cost, before one is cached
         return FINISH_MARGIN * validation.seconds_needed(owed, True, view_seconds) + reserve
 
@@ -461,7 +469,8 @@ def optimize(
         )
         textures, uvs = start_state
         start_candidate = finish(textures, reachable()), uvs
-        best.offer(validate(validation, start_candidate), start_candidate, 0)
+        scores = validate(validation, start_candidate) if start_scores is None else start_scores
+        best.offer(scores, start_candidate, 0)
 
     history: list[dict] = []
     step, loss_value, stopped_by = 0, math.nan, "steps"

@@ -312,6 +312,9 @@ def format_report(document: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+LAYOUT_NAMES = {"keep": "own layout", "repack": "repacked"}
+
+
 def _layout_lines(method: str, details: dict[str, Any]) -> list[str]:
     """What ``--uv repack`` / ``auto`` did with the UV layout (nothing for ``keep``)."""
     layout = details.get("layout")
@@ -329,12 +332,16 @@ def _layout_lines(method: str, details: dict[str, Any]) -> list[str]:
         line += f"the repacked result did not ship ({details.get('shipped')} did, on the own UVs)"
     else:
         line += "the mesh's own layout kept"
-        if details.get("start_psnr_training_views"):
-            starts = details["start_psnr_training_views"]
-            line += (
-                f" (its start rendered {starts['keep']:.2f} dB on training views, the "
-                f"repacked one's {starts['repack']:.2f} dB)"
-            )
     lines = [line]
+    if details.get("race"):
+        trials = []
+        for name, trial in details["race"].items():
+            trials.append(
+                f"{LAYOUT_NAMES[name]} {trial['validation_psnr_fg']:.2f} dB after "
+                f"{trial['steps']} steps"
+            )
+            if trial["shortfall_db"] != 0:
+                trials[-1] += f" ({trial['shortfall_db']:+.2f} dB below a filter)"
+        lines.append(f"  trials on the validation's Q: {', '.join(trials)}; the better went on")
     lines += [f"  {name}: layout kept, {reason}" for name, reason in layout["kept"].items()]
     return lines

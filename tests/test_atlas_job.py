@@ -44,19 +44,41 @@ def test_repack_returns_new_uvs_of_the_same_vertices_and_its_layout(cube):
     assert result.textures[0].shape == (64, 64, 3)
     assert result.details["layout_used"] == "repack"
     assert result.details["layout"]["k"] > 1.5
-    assert set(result.details["start_psnr_training_views"]) == {"keep", "repack"}
+    assert "race" not in result.details
 
 
-def test_auto_takes_the_layout_whose_start_renders_better_on_training_views(cube):
+def raced(cube, steps: int, on_event=None):
     from geoscaler.render import Renderer
 
     renderer = Renderer(cube, "cpu", QUICK)
-    result = run_method("direct", cube, 4, options("auto"), RunContext(renderer))
-    scores = result.details["start_psnr_training_views"]
-    far = result.details["start_psnr_farther_half"]
-    better = scores["repack"] > scores["keep"] and far["repack"] > far["keep"]
-    assert result.details["layout_used"] == ("repack" if better else "keep")
-    assert (result.uvs is not None) == (result.details["layout_used"] == "repack")
+    context = RunContext(renderer, on_event=on_event)
+    return run_method("direct", cube, 4, options("auto", steps), context)
+
+
+def test_auto_tries_both_layouts_and_the_better_validated_goes_on(cube):
+    result = raced(cube, steps=10)
+    race = result.details["race"]
+    assert [trial["steps"] for trial in race.values()] == [2, 2]  # 20% of the steps each
+    ranks = {name: (t["shortfall_db"], t["validation_psnr_fg"]) for name, t in race.items()}
+    winner = max(ranks, key=lambda name: (ranks[name], name == "keep"))
+    assert result.details["layout_used"] == winner
+    assert (result.uvs is not None) == (winner == "repack")
+    assert result.details["steps"] == 2 + 2 + 8  # the winner goes on with what it has left
+    # the continuation starts from the winner's best and validates it: never below it
+    assert result.details["validation_psnr_fg"] >= race[winner]["validation_psnr_fg"]
+
+
+def test_the_race_reports_one_run_of_steps_and_one_end(cube):
+    events = []
+    raced(cube, steps=5, on_event=events.append)
+    steps = [event.step for event in events if event.phase == "step"]
+    assert steps == list(range(1, 7))  # trials of 1 step each, then the winner's 4 left
+    assert {event.total_steps for event in events} == {5}
+    assert [event.phase for event in events].count("done") == 1
+    assert events[-1].phase == "done"
+    phases = [event.phase for event in events]
+    caching = [i for i, phase in enumerate(phases) if phase == "caching"]
+    assert caching and max(caching) < phases.index("step")  # the first trial's only
 
 
 def test_the_job_scores_repack_beside_direct_on_the_same_views(cube):
@@ -155,12 +177,17 @@ def test_the_report_says_what_happened_to_the_layout():
         "re-baked",
         "  b: layout kept, why",
     ]
-    starts = {"keep": 30.0, "repack": 29.5}
-    kept = {**repacked, "uv": "auto", "layout_used": "keep", "start_psnr_training_views": starts}
-    assert _layout_lines("direct", kept)[0] == (
-        "UV layout (auto): the mesh's own layout kept (its start rendered 30.00 dB on training "
-        "views, the repacked one's 29.50 dB)"
-    )
+    race = {
+        "keep": {"steps": 60, "validation_psnr_fg": 30.0, "shortfall_db": 0.0},
+        "repack": {"steps": 55, "validation_psnr_fg": 30.5, "shortfall_db": -0.25},
+    }
+    kept = {**repacked, "uv": "auto", "layout_used": "keep", "race": race}
+    assert _layout_lines("direct", kept) == [
+        "UV layout (auto): the mesh's own layout kept",
+        "  trials on the validation's Q: own layout 30.00 dB after 60 steps, repacked 30.50 dB "
+        "after 55 steps (-0.25 dB below a filter); the better went on",
+        "  b: layout kept, why",
+    ]
     floored = {**repacked, "shipped": "lanczos"}
     assert _layout_lines("direct", floored)[0] == (
         "UV layout (repack): the repacked result did not ship (lanczos did, on the own UVs)"

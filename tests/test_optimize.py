@@ -27,7 +27,7 @@ from geoscaler.protocol import Evaluation
 from geoscaler.render import Renderer
 from geoscaler.texture import linear_to_srgb, linear_to_texture, texture_to_linear
 from geoscaler.validation import Validation, validation_view_sets
-from geoscaler.views import ViewCache, ViewSet
+from geoscaler.views import ViewCache, ViewSet, training_views
 
 SCALE = 4
 
@@ -126,6 +126,25 @@ def test_the_loop_trains_on_the_cameras_it_is_given(scene):
         training_cameras=views["Q"].cameras[:3],
     )
     assert cached == [3, 3, 3] and result.training_views == 3
+
+
+def test_a_loop_can_take_over_an_earlier_loops_pool_and_validated_start(scene):
+    mesh, renderer, views = scene
+    validation = fresh_validation(scene)
+    pool = training_views(renderer, views["Q"].cameras[:4], validation.sizes, True)
+    model = lanczos_model(mesh)
+    first = optimize(renderer, model, small_config(steps=2), validation, pool=pool)
+    assert len(pool) == 4 and len(pool.taps) == 4
+    model.restore(first.textures)
+    validated = []
+    counting = validation.psnr
+    validation.psnr = lambda *args: validated.append(1) or counting(*args)
+    second = optimize(
+        renderer, model, small_config(steps=1), validation, pool=pool, start_scores=first.scores
+    )
+    assert len(validated) == 1  # its last state only: the start's scores were handed over
+    assert second.training_views == 4 and len(pool) == 4  # nothing cached again
+    assert validation.rank(second.scores) >= validation.rank(first.scores)
 
 
 def test_runs_are_deterministic_with_a_seed(scene):

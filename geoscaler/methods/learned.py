@@ -15,7 +15,8 @@ from geoscaler.optimize import Model, OptimizeConfig, optimize
 from geoscaler.render import Renderer
 from geoscaler.sizes import SizeRule
 from geoscaler.texture import linear_to_texture
-from geoscaler.validation import Validation, validation_view_sets
+from geoscaler.validation import Scores, Validation, validation_view_sets
+from geoscaler.views import ViewCache
 
 
 def method_renderer(mesh: TexturedMesh, options: MethodOptions, context: RunContext) -> Renderer:
@@ -44,6 +45,8 @@ def fit(
     keeps_uvs: bool = True,
     perceptual: PerceptualTerm | None = None,
     details: Mapping[str, Any] | None = None,
+    pool: ViewCache | None = None,
+    start_scores: Scores | None = None,
 ) -> MethodResult:
     """Optimise ``model`` and return its best validated candidate as 8-bit textures (and UVs).
 
@@ -57,6 +60,8 @@ def fit(
         keeps_uvs: the model never moves the UVs (texture taps can be cached).
         perceptual: an extra loss term.
         details: the method's own facts for the report, listed before the loop's.
+        pool, start_scores: an earlier loop's training pool and the scores of the model's
+            start, validated by it (:func:`geoscaler.optimize.optimize`).
     """
     validation = context.validation
     if validation is None:
@@ -73,6 +78,8 @@ def fit(
         perceptual=perceptual,
         started_at=started,
         reserve=context.reserve,
+        pool=pool,
+        start_scores=start_scores,
     )
     textures = [None if t is None else linear_to_texture(t) for t in result.textures]
     uvs = None if result.uvs is None else result.uvs.detach().cpu().numpy().astype("float32")

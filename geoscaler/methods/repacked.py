@@ -12,7 +12,8 @@ export needs to bake every other map of the repacked materials.
 
 from __future__ import annotations
 
-from dataclasses import replace
+import time
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -22,21 +23,25 @@ from geoscaler.atlas import Atlas, repack
 from geoscaler.bake import ChartMaps, bake
 from geoscaler.cameras import sample_training_cameras
 from geoscaler.errors import GeoscalerError
+from geoscaler.events import ProgressEvent
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods.learned import fit, loop_config
 from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext, output_sizes_for
-from geoscaler.metrics import psnr_fg
+from geoscaler.optimize import FINISH_MARGIN, OptimizeConfig
 from geoscaler.render import Renderer
 from geoscaler.sizes import COLOR, SizeRule
 from geoscaler.texture import texture_to_linear
 from geoscaler.uvmodes import check_uv_mode
 from geoscaler.validation import Validation, validation_view_sets
-from geoscaler.views import ViewCache, ViewSet, mip_chains
+from geoscaler.views import ViewCache, ViewSet, training_views
 
 FOOTPRINT_VIEWS = 8
 """Training views whose G-buffers plan the chart scales (cached once, reused by the loop)."""
 MAX_OVERSAMPLE = 4
 """Most samples per side of a new texel when baking (the original's density at 4x)."""
+TRIAL_SHARE = 0.2
+"""``--uv auto``: the share of the steps, and of the time left, that each layout's trial gets
+before the better one goes on (:func:`raced`)."""
 
 
 class LayoutValidation(Validation):
@@ -74,9 +79,9 @@ class LayoutValidation(Validation):
 
 def plan_layout(
     mesh: TexturedMesh, rule: SizeRule, renderer: Renderer, config: Any, memo: dict
-) -> tuple[Atlas, ViewSet]:
+) -> Atlas:
     """The new layout for ``rule``'s sizes, planned on the first :data:`FOOTPRINT_VIEWS`
-    training cameras (cached into ``memo`` for the loop), and those views."""
+    training cameras (their G-buffers cached into ``memo`` for the loop)."""
     cameras = sample_training_cameras(config.pool_views, config.seed, config.distances)
     views = ViewSet(renderer.relaid(mesh.uvs, memo), cameras[:FOOTPRINT_VIEWS])
     sizes = output_sizes_for(mesh, rule, renderer)
@@ -87,7 +92,7 @@ def plan_layout(
     ]
     cap = max((c for c in caps if c is not None), default=None)
     tri_ids = [gbuffer.tri_ids for gbuffer in views.gbuffers]
-    return repack(mesh, sizes, tri_ids, renderer.resolution, cap), views
+    return repack(mesh, sizes, tri_ids, renderer.resolution, cap)
 
 
 def baked_maps(
@@ -110,6 +115,52 @@ def baked_maps(
     return out
 
 
+@dataclass
+class Layout:
+    """A UV layout the texels can be optimised in.
+
+    Attributes:
+        renderer: renders candidates on this layout's UVs (references as the original).
+        validation: the job's validation, candidates rendered on this layout's UVs.
+        starts: per material a ``(h, w, 3)`` linear start (the bake), None for Lanczos.
+        atlas: the new layout, or None for the mesh's own.
+        baked: per material the 8-bit bake whose alpha the result takes (new layout only).
+    """
+
+    renderer: Renderer
+    validation: Validation
+    starts: list[torch.Tensor | None] | None = None
+    atlas: Atlas | None = None
+    baked: list[np.ndarray | None] = field(default_factory=list)
+
+    def fit(
+        self,
+        mesh: TexturedMesh,
+        rule: SizeRule,
+        model: Any,
+        config: Any,
+        context: RunContext,
+        started: float,
+        facts: dict,
+        **handover: Any,
+    ) -> MethodResult:
+        """:func:`geoscaler.methods.learned.fit` in this layout (``handover``: its ``pool``
+        and ``start_scores``): the result carries the UVs and :class:`Atlas` of a new one."""
+        context = replace(context, validation=self.validation)
+        if self.atlas is not None:
+            on_event = _with_layout_uvs(context.on_event, self.renderer.uvs)
+            context = replace(context, on_event=on_event)
+        result = fit(
+            mesh, rule, self.renderer, model, config, context, started, details=facts, **handover
+        )
+        if self.atlas is None:
+            return result
+        result.uvs = self.atlas.uvs.copy()
+        result.layout = self.atlas
+        result.textures = _with_alpha(result.textures, self.baked)
+        return result
+
+
 def repacked_direct(
     mesh: TexturedMesh,
     rule: SizeRule,
@@ -119,14 +170,13 @@ def repacked_direct(
     start_model: Any,
     defaults: dict,
 ) -> MethodResult:
-    """``direct`` in a new layout (``--uv repack``), or ``--uv auto``'s choice of layouts:
-    the new one where its start (the bake) renders better than the own layout's (Lanczos) on
-    the planning training views, on all of them and on their farther half (far views read
-    coarse mip levels across charts; the job's floor guards them too).
+    """``direct`` in a new layout (``--uv repack``), or ``--uv auto``'s race of the two
+    layouts (:func:`raced`).
 
     Args:
         start_model: ``(mesh, rule, renderer, starts) -> TexelModel`` making free texels from
-            per-material linear starts (None: ``direct``'s Lanczos start).
+            per-material linear starts (None: ``direct``'s Lanczos start); the model can be
+            restored to a validated candidate (``restore``).
         defaults: ``direct``'s loop settings.
     """
     renderer = context.renderer or Renderer(mesh, options.device)
@@ -134,51 +184,196 @@ def repacked_direct(
     if config.training_renderer != "exact":
         raise GeoscalerError("--uv repack and auto train through the exact renderer only")
     mode = check_uv_mode(options.settings.get("uv", "keep"))
-    memo: dict = {}
-    atlas, footprint_views = plan_layout(mesh, rule, renderer, config, memo)
+    memo: dict = {}  # the planning views' G-buffers serve the training pools too
+    atlas = plan_layout(mesh, rule, renderer, config, memo)
     sizes = output_sizes_for(mesh, rule, renderer)
-    references = renderer.reference_maps()
-    baked = baked_maps(mesh, atlas, references, sizes) if atlas.moved else []
-    relaid = renderer.relaid(atlas.uvs, memo)
-    keep_start = start_model(mesh, rule, renderer, None)
-    layout_start = None
-    if atlas.moved:
-        linear = {id(b): texture_to_linear(b, renderer.device) for b in baked if b is not None}
-        starts = [None if b is None else linear[id(b)] for b in baked]  # groups share one
-        layout_start = start_model(mesh, rule, renderer, starts)
-    choice = "repack" if atlas.moved else "keep"
-    facts: dict[str, Any] = {"uv": mode, "layout": atlas.facts, "auto_choice": "keep"}
-    if atlas.moved:  # what auto decides on (repack records it too, for comparison)
-        keep = _training_psnr(footprint_views, renderer, keep_start, sizes)
-        layout = _training_psnr(footprint_views, relaid, layout_start, sizes)
-        distances = np.array([camera.distance for camera in footprint_views.cameras])
-        far = distances >= np.median(distances)
-        scores = {"keep": float(keep.mean()), "repack": float(layout.mean())}
-        far_scores = {"keep": float(keep[far].mean()), "repack": float(layout[far].mean())}
-        facts["start_psnr_training_views"] = {k: round(v, 4) for k, v in scores.items()}
-        facts["start_psnr_farther_half"] = {k: round(v, 4) for k, v in far_scores.items()}
-        better = all(s["repack"] > s["keep"] for s in (scores, far_scores))
-        facts["auto_choice"] = "repack" if better else "keep"
-        if mode == "auto":
-            choice = facts["auto_choice"]
-    facts["layout_used"] = choice
     validation = context.validation
     if validation is None:
         validation = Validation(validation_view_sets(renderer), sizes)
-    if choice == "keep":  # the planning views' G-buffers serve the training pool too
-        context = replace(context, validation=validation)
-        own = renderer.relaid(mesh.uvs, memo)
-        return fit(mesh, rule, own, keep_start, config, context, started, details=facts)
-    context = replace(
-        context,
-        validation=LayoutValidation(validation, relaid),
-        on_event=_with_layout_uvs(context.on_event, relaid.uvs),
+    facts: dict[str, Any] = {"uv": mode, "layout": atlas.facts}
+    own = Layout(renderer.relaid(mesh.uvs, memo), validation)
+    if not atlas.moved:
+        facts["layout_used"] = "keep"
+        model = start_model(mesh, rule, own.renderer, None)
+        return own.fit(mesh, rule, model, config, context, started, facts)
+    baked = baked_maps(mesh, atlas, renderer.reference_maps(), sizes)
+    linear = {id(b): texture_to_linear(b, renderer.device) for b in baked if b is not None}
+    relaid = renderer.relaid(atlas.uvs, memo)
+    new = Layout(
+        relaid,
+        LayoutValidation(validation, relaid),
+        [None if b is None else linear[id(b)] for b in baked],  # groups share one start
+        atlas,
+        baked,
     )
-    result = fit(mesh, rule, relaid, layout_start, config, context, started, details=facts)
-    result.uvs = atlas.uvs.copy()
-    result.layout = atlas
-    result.textures = _with_alpha(result.textures, baked)
+    if mode == "repack":
+        facts["layout_used"] = "repack"
+        model = start_model(mesh, rule, relaid, new.starts)
+        return new.fit(mesh, rule, model, config, context, started, facts)
+    layouts = {"keep": own, "repack": new}
+    return raced(mesh, rule, layouts, start_model, config, context, started, facts)
+
+
+def raced(
+    mesh: TexturedMesh,
+    rule: SizeRule,
+    layouts: dict[str, Layout],
+    start_model: Any,
+    config: OptimizeConfig,
+    context: RunContext,
+    started: float,
+    facts: dict,
+) -> MethodResult:
+    """``--uv auto``: a trial in each layout, then the one whose trial validates better goes
+    on from its best candidate with the steps and the time left.
+
+    Each trial makes at most :data:`TRIAL_SHARE` of the steps and runs at most that share of
+    the time left when the race starts, counted from its own start (the first trial's views
+    are cached in the whole run's caching window, which may run past its end). Trials are
+    ranked as the loop ranks candidates (:meth:`Validation.rank`: the same frozen views and
+    floor in both layouts; a tie keeps the mesh's own). The winner's loop goes on from its
+    validated best, with its training pool (growing again) and that best's scores as its
+    start's, so what ships is never below the better trial on the validation views.
+    """
+    end = None if config.time_budget is None else started + config.time_budget - context.reserve
+    trial_seconds = None if end is None else TRIAL_SHARE * (end - time.perf_counter())
+    trial_steps = max(1, round(TRIAL_SHARE * config.steps))
+    cameras = sample_training_cameras(config.pool_views, config.seed, config.distances)
+    trials: dict[str, MethodResult] = {}
+    models: dict[str, Any] = {}
+    pools: dict[str, ViewCache] = {}
+    steps = 0
+    for index, (name, layout) in enumerate(layouts.items()):
+        deadline = None
+        if end is not None and trial_seconds is not None:
+            deadline = min(time.perf_counter() + trial_seconds, end)
+        phase = _Phase(config, context, started, steps, first=index == 0, last=False)
+        models[name] = start_model(mesh, rule, layout.renderer, layout.starts)
+        pools[name] = training_views(layout.renderer, cameras, layout.validation.sizes, True)
+        trials[name] = phase.fit(
+            mesh, rule, layout, models[name], deadline, 0.0, trial_steps, pool=pools[name]
+        )
+        steps += trials[name].details["steps"]
+        if _stopped(context):
+            break
+    winner = _winner(trials, layouts, facts)
+    first_step = next(iter(trials.values())).details["first_step_seconds"]
+    best, layout, model = trials[winner], layouts[winner], models[winner]
+    steps_left = config.steps - best.details["steps"]
+    finishing = FINISH_MARGIN * layout.validation.seconds_needed(2, False)
+    no_time = end is not None and time.perf_counter() + finishing >= end
+    if _stopped(context) or steps_left < 1 or no_time:
+        best.details = {**facts, **best.details, "steps": steps, "first_step_seconds": first_step}
+        return best
+    device = layout.renderer.device
+    model.restore(
+        [None if t is None else texture_to_linear(t[..., :3], device) for t in best.textures]
+    )
+    pools[winner].views.cameras = list(cameras)  # its loop stopped the pool's growth
+    phase = _Phase(config, context, started, steps, first=False, last=True)
+    result = phase.fit(
+        mesh,
+        rule,
+        layout,
+        model,
+        end,
+        context.reserve,
+        steps_left,
+        facts,
+        pool=pools[winner],
+        start_scores=best.details["validation_scores"],
+    )
+    result.details.update(steps=steps + result.details["steps"], first_step_seconds=first_step)
     return result
+
+
+def _winner(trials: dict[str, MethodResult], layouts: dict[str, Layout], facts: dict) -> str:
+    """The layout whose trial ranks first on the validation (a tie keeps the mesh's own);
+    each trial's steps, Q and shortfall go into ``facts["race"]``."""
+    ranks = {
+        n: layouts[n].validation.rank(t.details["validation_scores"]) for n, t in trials.items()
+    }
+    facts["race"] = {
+        name: {
+            "steps": trial.details["steps"],
+            "validation_psnr_fg": round(ranks[name][1], 4),
+            "shortfall_db": round(ranks[name][0], 4),
+        }
+        for name, trial in trials.items()
+    }
+    facts["layout_used"] = max(ranks, key=lambda name: (ranks[name], name == "keep"))
+    return facts["layout_used"]
+
+
+def _stopped(context: RunContext) -> bool:
+    return context.controller is not None and context.controller.stopped
+
+
+@dataclass
+class _Phase:
+    """One phase of :func:`raced`: a loop whose steps and events continue the race's.
+
+    Attributes:
+        config, context, started: the method's loop settings, context and start.
+        steps_before: steps the race made before this phase.
+        first: the first phase counts its budget from the method's start (its views are cached
+            in the whole run's caching window); later ones from their own start.
+        last: the phase that ends the race (its ``"done"`` event is passed on).
+    """
+
+    config: OptimizeConfig
+    context: RunContext
+    started: float
+    steps_before: int
+    first: bool
+    last: bool
+
+    def fit(
+        self,
+        mesh: TexturedMesh,
+        rule: SizeRule,
+        layout: Layout,
+        model: Any,
+        loop_end: float | None,
+        reserve: float,
+        steps: int,
+        facts: dict | None = None,
+        **handover: Any,
+    ) -> MethodResult:
+        """:meth:`Layout.fit` for at most ``steps`` steps, its loop ending by ``loop_end``
+        (``time.perf_counter()``; None: no budget) with ``reserve`` seconds after it."""
+        now = time.perf_counter()
+        start = self.started if self.first else now
+        config = replace(self.config, steps=steps)
+        if loop_end is not None:
+            if self.first:
+                reserve = self.started + self.config.time_budget - loop_end
+            else:
+                config = replace(config, time_budget=loop_end + reserve - now)
+        on_event = self._events(start - self.started)
+        context = replace(self.context, reserve=reserve, on_event=on_event)
+        return layout.fit(mesh, rule, model, config, context, start, facts or {}, **handover)
+
+    def _events(self, seconds_before: float) -> Any:
+        """The context's ``on_event`` seeing the race's steps and seconds: this phase's counted
+        on from what came before, its caching reported in the first phase only and its end in
+        the last only."""
+        on_event = self.context.on_event
+        if on_event is None:
+            return None
+        total = self.config.steps
+
+        def forward(event: ProgressEvent) -> None:
+            if (event.phase == "caching" and not self.first) or (
+                event.phase == "done" and not self.last
+            ):
+                return
+            step = event.step + self.steps_before
+            on_event(
+                replace(event, step=step, total_steps=total, elapsed=event.elapsed + seconds_before)
+            )
+
+        return forward
 
 
 def _with_layout_uvs(on_event: Any, uvs: torch.Tensor) -> Any:
@@ -195,20 +390,6 @@ def _with_layout_uvs(on_event: Any, uvs: torch.Tensor) -> Any:
         on_event(event)
 
     return forward
-
-
-def _training_psnr(views: ViewSet, renderer: Renderer, model: Any, sizes: list) -> np.ndarray:
-    """``(N,)`` PSNR-fg of a model's start in each of some training views (never the
-    validation's)."""
-    cache = ViewCache(views, sizes, True, renderer)
-    textures, _ = model.candidate()
-    with torch.no_grad():
-        textures = mip_chains(textures)
-        values = [
-            psnr_fg(cache.render(i, textures, None)[None], *[t[None] for t in views.reference(i)])
-            for i in range(len(views))
-        ]
-    return torch.cat(values).cpu().numpy().astype(np.float64)
 
 
 def _with_alpha(
