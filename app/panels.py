@@ -145,7 +145,7 @@ class OptimisePanel:
                 settings.uv = layouts[index]
                 imgui.set_item_tooltip(
                     "keep the mesh's UVs, repack its charts by the texels the views ask of "
-                    "them (every map re-baked), or auto (the layout whose start renders better)"
+                    "them (every map re-baked), or auto (a trial in each, the better one goes on)"
                 )
             imgui.text_disabled(run_summary(settings))
             evaluation = settings.evaluation

@@ -69,7 +69,7 @@ end where the machine is fast enough; the budget bounds the demo's time where it
 machine shared with other CPU work the demo takes longer and may run few or no steps."""
 DEMO_UV = "auto"
 """``--uv`` of the demo's ``direct``: the pebble's atlas is a scan's, mostly empty, so ``auto``
-repacks it (what the tool is for) unless the new layout starts worse on the training views."""
+repacks it (what the tool is for) unless the mesh's own layout validates better in its trial."""
 
 
 def demo(

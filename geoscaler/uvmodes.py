@@ -9,7 +9,7 @@ from geoscaler.errors import GeoscalerError
 
 UV_MODES = ("keep", "repack", "auto")
 """Keep the mesh's UV layout, repack its charts (:mod:`geoscaler.atlas`), or choose per mesh
-(:func:`geoscaler.methods.repacked.repacked_direct`)."""
+(:func:`geoscaler.methods.repacked.raced`)."""
 
 
 def check_uv_mode(mode: str) -> str:
@@ -27,5 +27,5 @@ def add_uv_argument(parser: Any) -> None:
         default="keep",
         help="with the direct method: keep the mesh's UV layout (default), repack its charts "
         "by the texels the views ask of them (every map re-baked, new UVs written), or auto "
-        "(whichever layout starts better on training views)",
+        "(a short trial in each layout, then the one that validates better goes on)",
     )

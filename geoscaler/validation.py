@@ -187,6 +187,11 @@ class Validation:
         return sum(self.counts.values()) if self.counts else sum(map(len, self.sets.values()))
 
     @property
+    def view_cost(self) -> float:
+        """Mean seconds to cache one validation view with its taps (0 before one is cached)."""
+        return self._view_cost.mean
+
+    @property
     def planned(self) -> int:
         """Views of every set, cached or not."""
         return sum(len(cache.views.cameras) for cache in self.sets.values())
@@ -242,6 +247,7 @@ class Validation:
         scores, per_view = {}, {}
         render_seconds = metric_seconds = 0.0
         for name, cache in self.sets.items():
+            cache.find_taps(self.counts[name] - 1)  # once per view, not a render's unit cost
             values = []
             for view in range(self.counts[name]):
                 reference, foreground = cache.views.reference(view)

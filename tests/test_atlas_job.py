@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from geoscaler.cli import main
 from geoscaler.errors import GeoscalerError
@@ -79,6 +80,28 @@ def test_the_race_reports_one_run_of_steps_and_one_end(cube):
     phases = [event.phase for event in events]
     caching = [i for i, phase in enumerate(phases) if phase == "caching"]
     assert caching and max(caching) < phases.index("step")  # the first trial's only
+
+
+def test_a_new_layouts_validation_prices_the_taps_it_has_still_to_find(cube):
+    from geoscaler.methods.repacked import LayoutValidation
+    from geoscaler.render import Renderer
+    from geoscaler.validation import Validation, validation_view_sets
+
+    renderer = Renderer(cube, "cpu", QUICK)
+    base = Validation(validation_view_sets(renderer, guard_views=2), [(64, 64)])
+    base.cache_all()
+    base.freeze()
+    shifted = renderer.relaid(cube.uvs * 0.5 + 0.25)
+    layout = LayoutValidation(base, shifted)
+    frozen = sum(base.counts.values())
+    assert frozen == 3 + 2 + 2 and base.view_cost > 0
+    owed = layout.seconds_needed(1, False) - base.seconds_needed(1, False)
+    assert owed == pytest.approx(frozen * base.view_cost)
+    layout.psnr([torch.rand(64, 64, 3)], shifted.uvs)
+    assert all(len(cache.taps) == base.counts[n] for n, cache in layout.sets.items())
+    assert layout.seconds_needed(1, False) == pytest.approx(
+        layout.num_views * layout._render_seconds + 3 * layout._metric_seconds
+    )
 
 
 def test_the_job_scores_repack_beside_direct_on_the_same_views(cube):

@@ -7,7 +7,8 @@ optimised through the renderer as ``direct`` does. References are always the ori
 the original UVs: the new layout has the same vertices, faces and 3D positions, so every
 G-buffer (and foreground mask) is the original's, and the job's validation views are shared
 (:class:`LayoutValidation`). The result carries the new UVs and the :class:`Atlas`, which the
-export needs to bake every other map of the repacked materials.
+export needs to bake every other map of the repacked materials. ``--uv auto`` races the two
+layouts on that shared validation (:func:`raced`).
 """
 
 from __future__ import annotations
@@ -75,6 +76,20 @@ class LayoutValidation(Validation):
     def baseline_scores(self) -> dict[str, dict[str, float]]:
         self.freeze()
         return self.base.baseline_scores()
+
+    def seconds_needed(self, validations: int, caching: bool, view_seconds: float = 0.0) -> float:
+        """As :meth:`Validation.seconds_needed`, with the base's unit costs until this layout
+        has measured its own (the same views and sizes), plus the taps of this layout still
+        to find in the frozen views (a view's caching cost each: the views themselves are
+        cached already, by the base)."""
+        if self._render_seconds:
+            seconds = super().seconds_needed(validations, caching, view_seconds)
+        else:
+            seconds = self.base.seconds_needed(validations, caching, view_seconds)
+        if not self.frozen:
+            return seconds
+        missing = sum(max(self.counts[n] - len(c.taps), 0) for n, c in self.sets.items())
+        return seconds + missing * (self.base.view_cost or view_seconds)
 
 
 def plan_layout(
@@ -227,9 +242,11 @@ def raced(
     """``--uv auto``: a trial in each layout, then the one whose trial validates better goes
     on from its best candidate with the steps and the time left.
 
-    Each trial makes at most :data:`TRIAL_SHARE` of the steps and runs at most that share of
-    the time left when the race starts, counted from its own start (the first trial's views
-    are cached in the whole run's caching window, which may run past its end). Trials are
+    Each trial runs at most :data:`TRIAL_SHARE` of the time left when the race starts,
+    counted from its own start (the first trial's views are cached in the whole run's caching
+    window, which may run past its end). The first makes at most that share of the steps, the
+    second as many as the first made (the first's steps are slower: they cache the views
+    both use), so that both are ranked after the same number of steps. Trials are
     ranked as the loop ranks candidates (:meth:`Validation.rank`: the same frozen views and
     floor in both layouts; a tie keeps the mesh's own). The winner's loop goes on from its
     validated best, with its training pool (growing again) and that best's scores as its
@@ -254,6 +271,8 @@ def raced(
             mesh, rule, layout, models[name], deadline, 0.0, trial_steps, pool=pools[name]
         )
         steps += trials[name].details["steps"]
+        if index == 0:
+            trial_steps = max(trials[name].details["steps"], 1)
         if _stopped(context):
             break
     winner = _winner(trials, layouts, facts)
