@@ -219,6 +219,13 @@ class Validation:
         while self.cache_next():
             pass
 
+    def find_taps(self) -> None:
+        """Find the taps of every view validated on (the frozen ones), which the first
+        validation would find otherwise."""
+        self.freeze()
+        for name, cache in self.sets.items():
+            cache.find_taps(self.counts[name] - 1)
+
     def freeze(self) -> None:
         """Validate on the views cached so far from now on (at least :data:`MIN_FROZEN`)."""
         if self.frozen:
@@ -246,8 +253,8 @@ class Validation:
         mips = mip_chains(textures)
         scores, per_view = {}, {}
         render_seconds = metric_seconds = 0.0
+        self.find_taps()  # once per view: not a render's unit cost
         for name, cache in self.sets.items():
-            cache.find_taps(self.counts[name] - 1)  # once per view, not a render's unit cost
             values = []
             for view in range(self.counts[name]):
                 reference, foreground = cache.views.reference(view)

@@ -22,7 +22,7 @@ import torch
 
 from geoscaler.atlas import Atlas, repack
 from geoscaler.bake import ChartMaps, bake
-from geoscaler.cameras import sample_training_cameras
+from geoscaler.cameras import Camera, sample_training_cameras
 from geoscaler.errors import GeoscalerError
 from geoscaler.events import ProgressEvent
 from geoscaler.mesh import TexturedMesh
@@ -253,43 +253,30 @@ def raced(
     start's, so what ships is never below the better trial on the validation views.
     """
     end = None if config.time_budget is None else started + config.time_budget - context.reserve
-    trial_seconds = None if end is None else TRIAL_SHARE * (end - time.perf_counter())
-    trial_steps = max(1, round(TRIAL_SHARE * config.steps))
     cameras = sample_training_cameras(config.pool_views, config.seed, config.distances)
-    trials: dict[str, MethodResult] = {}
-    models: dict[str, Any] = {}
-    pools: dict[str, ViewCache] = {}
-    steps = 0
-    for index, (name, layout) in enumerate(layouts.items()):
-        deadline = None
-        if end is not None and trial_seconds is not None:
-            deadline = min(time.perf_counter() + trial_seconds, end)
-        phase = _Phase(config, context, started, steps, first=index == 0, last=False)
-        models[name] = start_model(mesh, rule, layout.renderer, layout.starts)
-        pools[name] = training_views(layout.renderer, cameras, layout.validation.sizes, True)
-        trials[name] = phase.fit(
-            mesh, rule, layout, models[name], deadline, 0.0, trial_steps, pool=pools[name]
-        )
-        steps += trials[name].details["steps"]
-        if index == 0:
-            trial_steps = max(trials[name].details["steps"], 1)
+    race = _Trials(config, context, started, end, cameras)
+    for name, layout in layouts.items():
+        race.run(mesh, rule, name, layout, start_model(mesh, rule, layout.renderer, layout.starts))
         if _stopped(context):
             break
-    winner = _winner(trials, layouts, facts)
-    first_step = next(iter(trials.values())).details["first_step_seconds"]
-    best, layout, model = trials[winner], layouts[winner], models[winner]
+    winner = _winner(race.results, layouts, facts)
+    first_step = next(iter(race.results.values())).details["first_step_seconds"]
+    best, layout, model = race.results[winner], layouts[winner], race.models[winner]
     steps_left = config.steps - best.details["steps"]
     finishing = FINISH_MARGIN * layout.validation.seconds_needed(2, False)
     no_time = end is not None and time.perf_counter() + finishing >= end
     if _stopped(context) or steps_left < 1 or no_time:
-        best.details = {**facts, **best.details, "steps": steps, "first_step_seconds": first_step}
+        best.details = {**facts, **best.details, "steps": race.steps}
+        best.details["first_step_seconds"] = first_step
         return best
     device = layout.renderer.device
     model.restore(
         [None if t is None else texture_to_linear(t[..., :3], device) for t in best.textures]
     )
-    pools[winner].views.cameras = list(cameras)  # its loop stopped the pool's growth
-    phase = _Phase(config, context, started, steps, first=False, last=True)
+    pool = race.pools[winner]
+    pool.views.cameras = list(cameras)  # the trial's loop stopped the pool's growth
+    phase = _Phase(config, context, started, race.steps, first=False, last=True)
+    scores = best.details["validation_scores"]
     result = phase.fit(
         mesh,
         rule,
@@ -299,11 +286,55 @@ def raced(
         context.reserve,
         steps_left,
         facts,
-        pool=pools[winner],
-        start_scores=best.details["validation_scores"],
+        pool=pool,
+        start_scores=scores,
     )
-    result.details.update(steps=steps + result.details["steps"], first_step_seconds=first_step)
+    result.details["steps"] += race.steps
+    result.details["first_step_seconds"] = first_step
     return result
+
+
+class _Trials:
+    """:func:`raced`'s trials, one layout after the other, and what they leave: each one's
+    result, model and training pool, and the steps made in all."""
+
+    def __init__(
+        self,
+        config: OptimizeConfig,
+        context: RunContext,
+        started: float,
+        end: float | None,
+        cameras: list[Camera],
+    ):
+        self.config, self.context, self.started, self.end = config, context, started, end
+        self.cameras = cameras
+        self.seconds = None if end is None else TRIAL_SHARE * (end - time.perf_counter())
+        self.steps_each = max(1, round(TRIAL_SHARE * config.steps))
+        self.results: dict[str, MethodResult] = {}
+        self.models: dict[str, Any] = {}
+        self.pools: dict[str, ViewCache] = {}
+        self.steps = 0
+
+    def run(
+        self, mesh: TexturedMesh, rule: SizeRule, name: str, layout: Layout, model: Any
+    ) -> None:
+        """The trial of ``layout`` from ``model``: the first one sets the step count of the
+        others to the steps it made. A trial after the first finds its layout's taps in the
+        validation views (frozen by the first) before its time starts: that is the layout's
+        cost, not its steps'."""
+        if self.results:
+            layout.validation.find_taps()
+        deadline = None
+        if self.end is not None and self.seconds is not None:
+            deadline = min(time.perf_counter() + self.seconds, self.end)
+        first = not self.results
+        phase = _Phase(self.config, self.context, self.started, self.steps, first, last=False)
+        pool = training_views(layout.renderer, self.cameras, layout.validation.sizes, True)
+        result = phase.fit(mesh, rule, layout, model, deadline, 0.0, self.steps_each, pool=pool)
+        self.results[name], self.models[name], self.pools[name] = result, model, pool
+        self.steps += result.details["steps"]
+        if first:
+            self.steps_each = max(result.details["steps"], 1)
 
 
 def _winner(trials: dict[str, MethodResult], layouts: dict[str, Layout], facts: dict) -> str:
