@@ -288,9 +288,9 @@ def test_demo_builds_the_asset_and_writes_outputs(tmp_path, capsys):
     report = json.loads((tmp_path / "demo" / "geoscaler_pebble_x4.json").read_text())
     assert report["protocol"] == 1 and report["method"] == "direct"
     assert report["details"]["steps"] == 0 and report["details"]["stopped_by"] == "time budget"
-    assert report["details"]["uv"] == "auto"  # the scan-like atlas: both layouts tried
+    assert report["details"]["uv"] == "repack"  # the scan-like atlas: what the tool is for
     assert report["details"]["layout"]["charts"] == 31
-    assert set(report["details"]["race"]) == {"keep", "repack"}
+    assert report["details"]["layout_used"] == "repack"
     picture = Image.open(tmp_path / "demo" / "demo_comparison.png")
     assert picture.size[0] == 3 * 256 + 2 * 4  # original | bicubic | direct
     asset = (tmp_path / "demo" / "geoscaler_pebble.glb").read_bytes()
