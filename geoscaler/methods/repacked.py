@@ -153,7 +153,7 @@ class Layout:
         mesh: TexturedMesh,
         rule: SizeRule,
         model: Any,
-        config: Any,
+        config: OptimizeConfig,
         context: RunContext,
         started: float,
         facts: dict,
