@@ -338,7 +338,7 @@ def _layout_lines(method: str, details: dict[str, Any]) -> list[str]:
         for name, trial in details["race"].items():
             trials.append(
                 f"{LAYOUT_NAMES[name]} {trial['validation_psnr_fg']:.2f} dB after "
-                f"{trial['steps']} steps"
+                f"{trial['steps']} step{'' if trial['steps'] == 1 else 's'}"
             )
             if trial["shortfall_db"] != 0:
                 trials[-1] += f" ({trial['shortfall_db']:+.2f} dB below a filter)"
