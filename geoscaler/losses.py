@@ -68,7 +68,6 @@ def view_loss(
     (:meth:`~geoscaler.views.ViewCache.object_colours`), the same mean up to float rounding."""
     if uvs is None and cache.with_taps and ssim_weight == 0 and perceptual is None:
         colours = cache.object_colours(view, textures)
-        reference = cache.views.reference(view)[0].view(-1, 3)
-        return (colours - reference.index_select(0, cache.object_pixels[view])).square().mean()
+        return (colours - cache.object_reference(view)).square().mean()
     image = cache.render(view, textures, uvs)
     return rendering_loss(image, *cache.views.reference(view), ssim_weight, perceptual)

@@ -38,6 +38,7 @@ from geoscaler.adamw import AdamW
 from geoscaler.cameras import Camera, sample_training_cameras
 from geoscaler.events import Controller, ProgressEvent
 from geoscaler.losses import PerceptualTerm, view_loss
+from geoscaler.majorize import Sloped, majorized_step
 from geoscaler.render import Renderer
 from geoscaler.schedule import Schedule
 from geoscaler.soft import SoftSettings
@@ -105,6 +106,10 @@ class OptimizeConfig:
             learning rate by f and validates again after ``validate_every * f`` steps; with
             it the candidate is also validated as the validation sets freeze, so that a step
             size that hurts is found early (None: no backtracking).
+        majorized_steps: the first steps are majorise-minimise steps
+            (:func:`geoscaler.majorize.majorized_step`), where the model is
+            :class:`~geoscaler.majorize.Sloped` and the loss the plain L2 on cached taps;
+            AdamW takes the rest.
         weight_decay: AdamW weight decay.
         ssim_weight: weight of ``1 - SSIM`` beside the L2 term.
         loss_in_db: the step minimises the mean of its views' ``10 log10(loss)`` (each view's
@@ -126,6 +131,7 @@ class OptimizeConfig:
     lr: float = 0.02
     short_run_boost: float = 1.0
     backtrack: float | None = None
+    majorized_steps: int = 0
     weight_decay: float = 0.0
     warmup_steps: int = 10
     ssim_weight: float = 0.1
@@ -440,6 +446,8 @@ def optimize(
     start_state = _detached(model)
 
     candidate = functools.partial(_detached, model)  # the current state, on request
+    plain_l2 = config.ssim_weight == 0 and perceptual is None and not config.loss_in_db
+    majorizes = isinstance(model, Sloped) and keeps_uvs and train.with_taps and plain_l2
 
     def offer(scores: dict[str, float], finished: Candidate, step: int) -> bool:
         improved = best.offer(scores, finished, step)
@@ -489,18 +497,23 @@ def optimize(
             stopped_by = "time budget"
             break
         views = torch.randperm(len(train), generator=generator)[: config.views_per_step]
-        loss_value = train_step(
-            train,
-            model,
-            optimizer,
-            views.tolist(),
-            config,
-            lambda at=step, scale=lr_scale: (
-                scale
-                * schedule.factor(at, schedule.time_spent(time.perf_counter(), start, loop_start))
-            ),
-            perceptual,
-        )
+        if step < config.majorized_steps and majorizes:
+            loss_value = majorized_step(train, model, views.tolist())
+        else:
+            loss_value = train_step(
+                train,
+                model,
+                optimizer,
+                views.tolist(),
+                config,
+                lambda at=step, scale=lr_scale: (
+                    scale
+                    * schedule.factor(
+                        at, schedule.time_spent(time.perf_counter(), start, loop_start)
+                    )
+                ),
+                perceptual,
+            )
         step += 1
         step_seconds = time.perf_counter() - step_start
         elapsed = time.perf_counter() - start

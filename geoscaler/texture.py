@@ -34,6 +34,19 @@ def linear_to_srgb(x: torch.Tensor) -> torch.Tensor:
     )
 
 
+def srgb_to_linear_slope(x: torch.Tensor) -> torch.Tensor:
+    """d :func:`srgb_to_linear` / dx at sRGB-encoded values ``x``, same shape."""
+    return torch.where(x <= 0.04045, 1 / 12.92, 2.4 / 1.055 * ((x + 0.055) / 1.055) ** 1.4)
+
+
+def linear_to_srgb_slope(x: torch.Tensor) -> torch.Tensor:
+    """d :func:`linear_to_srgb` / dx at linear values ``x``, same shape (0 outside [0, 1],
+    where the encoding clamps)."""
+    inside = (x >= 0) & (x <= 1)
+    slope = 1.055 / 2.4 * x.clamp(0.0031308, 1.0) ** (1 / 2.4 - 1)
+    return torch.where(inside, torch.where(x <= 0.0031308, 12.92, slope), 0.0)
+
+
 def to_rgb(texture: np.ndarray) -> np.ndarray:
     """The colour channels of a texture, grey broadcast to RGB and alpha dropped.
 

@@ -274,13 +274,30 @@ class ViewCache:
         """``(F, 3)`` sRGB colours of a candidate with the mesh's UVs at the object's pixels in
         cached view ``view`` (:attr:`object_pixels`: its foreground mask's, in order);
         differentiable. Needs the taps (``with_taps``)."""
+        return linear_to_srgb(self.object_linear(view, textures))
+
+    def object_reference(self, view: int) -> torch.Tensor:
+        """``(F, 3)`` the reference's sRGB colours at the object's pixels of cached view
+        ``view``, in :attr:`object_pixels` order."""
         self.find_taps(view)
-        linear = self.untextured[view]
+        reference = self.views.reference(view)[0].view(-1, 3)
+        return reference.index_select(0, self.object_pixels[view])
+
+    def object_linear(
+        self,
+        view: int,
+        textures: Sequence[torch.Tensor | MipTexture | None],
+        untextured: bool = True,
+    ) -> torch.Tensor:
+        """``(F, 3)`` linear colours before the sRGB encoding of :meth:`object_colours`;
+        without ``untextured`` only the textured materials' part (linear in ``textures``)."""
+        self.find_taps(view)
+        linear = self.untextured[view] if untextured else torch.zeros_like(self.untextured[view])
         mips = mip_chains(textures)
         for index, (mip, taps) in enumerate(zip(mips, self.taps[view], strict=True)):
             if mip is not None and taps is not None:
                 linear = linear + taps(mip.table) * self.renderer.factors[index]
-        return linear_to_srgb(linear)
+        return linear
 
     def score(
         self,

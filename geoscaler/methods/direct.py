@@ -25,7 +25,12 @@ from geoscaler.methods.registry import (
 from geoscaler.methods.repacked import repacked_direct
 from geoscaler.render import Renderer
 from geoscaler.sizes import SizeRule
-from geoscaler.texture import linear_to_srgb, srgb_to_linear, texture_to_linear
+from geoscaler.texture import (
+    linear_to_srgb,
+    srgb_to_linear,
+    srgb_to_linear_slope,
+    texture_to_linear,
+)
 
 # Texels are optimised as sRGB values (see TexelModel). Measured at 4x, 300 steps, no SSIM term:
 # learning rate 0.003 / 0.01 gained +2.84 / +2.82 dB PSNR-fg over bicubic on Q on the lego scan
@@ -38,11 +43,17 @@ from geoscaler.texture import linear_to_srgb, srgb_to_linear, texture_to_linear
 # candidate that validates worse sends the loop back to its best at a quarter of the rate
 # (60 s at 4x: chain +1.49 dB over bicubic instead of Lanczos's +0.92, banana +1.34 instead of
 # +0.69; bob +1.07 with, +1.05 without: it never backtracked).
+# Adam's first steps move every texel by about the rate: the loop now starts with 5
+# majorise-minimise steps (geoscaler.majorize), then Adam at 0.01 without a boost. Gains over
+# bicubic on 20 Q views after 5 / 20 / 80 steps, 48 training views cached first
+# (`python benchmarks/first_steps.py`, 4x): bob +0.55 / +0.92 / +1.06 with Adam 0.02 from
+# Lanczos, +0.87 / +0.97 / +1.05 with the majorized start; the sofa +0.21 / +1.00 / +1.42 and
+# +1.24 / +1.27 / +1.43; the frypan +0.83 / +1.35 / +1.74 and +1.38 / +1.57 / +1.75.
 DEFAULT_CONFIG = {
     "steps": 300,
-    "lr": 0.02,
+    "lr": 0.01,
     "warmup_steps": 3,
-    "short_run_boost": 2.0,
+    "majorized_steps": 5,
     "backtrack": 0.25,
     "ssim_weight": 0.0,
     "validate_every": 100,
@@ -74,6 +85,11 @@ class TexelModel:
 
     def candidate(self) -> tuple[list[torch.Tensor | None], None]:
         return [None if t is None else srgb_to_linear(t) for t in self.encoded], None
+
+    @torch.no_grad()
+    def slopes(self) -> list[torch.Tensor | None]:
+        """Per material d(linear texel) / d(parameter), ``(h, w, 3)`` (None: untextured)."""
+        return [None if t is None else srgb_to_linear_slope(t) for t in self.encoded]
 
     @torch.no_grad()
     def project(self) -> None:
