@@ -35,7 +35,7 @@ LAYERS = [
     ["filters", "io", "procedural"],
     ["render", "uvmaps", "maps", "soft"],
     ["views", "nn", "atlas", "bake"],
-    ["validation", "losses", "events"],
+    ["validation", "losses", "majorize", "events"],
     ["optimize"],
     ["methods"],
     ["arguments", "rows", "shipping"],
