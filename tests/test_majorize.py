@@ -66,12 +66,14 @@ def test_the_bounds_are_the_row_sums_of_the_gauss_newton_curvature(small_views):
         full = torch.cat([j.reshape(j.shape[0], -1) for j in jacobians], dim=1)  # (n, P)
         assert (full >= 0).all()  # what makes the row sums a bound
         row_sums = 2 * full.T @ (full @ torch.ones(full.shape[1])) / full.shape[0]
-        for total, part in zip(expected, row_sums.split([p.numel() for p in parameters])):
+        parts = row_sums.split([p.numel() for p in parameters])
+        for total, part in zip(expected, parts, strict=True):
             total += part.view_as(total) / len(views)
     for bound, row_sums in zip(bounds, expected, strict=True):
         assert bound.abs().max() > 0
         torch.testing.assert_close(bound, row_sums, rtol=1e-4, atol=1e-9)
-    assert loss > 0 and all(g.shape == p.shape for g, p in zip(gradients, parameters))
+    assert loss > 0
+    assert [g.shape for g in gradients] == [p.shape for p in parameters]
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
