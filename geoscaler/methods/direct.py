@@ -45,10 +45,11 @@ from geoscaler.texture import (
 # +0.69; bob +1.07 with, +1.05 without: it never backtracked).
 # Adam's first steps move every texel by about the rate: the loop now starts with 5
 # majorise-minimise steps (geoscaler.majorize), then Adam at 0.01 without a boost. Gains over
-# bicubic on 20 Q views after 5 / 20 / 80 steps, 48 training views cached first
-# (`python benchmarks/first_steps.py`, 4x): bob +0.55 / +0.92 / +1.06 with Adam 0.02 from
-# Lanczos, +0.87 / +0.97 / +1.05 with the majorized start; the sofa +0.21 / +1.00 / +1.42 and
-# +1.24 / +1.27 / +1.43; the frypan +0.83 / +1.35 / +1.74 and +1.38 / +1.57 / +1.75.
+# bicubic on 20 Q views after 5 / 20 / 80 steps, 48 training views
+# (`python benchmarks/first_steps.py`, 4x), Adam at 0.02 from Lanczos -> the majorised start:
+# bob +0.51 / +0.92 / +1.06 -> +0.87 / +0.96 / +1.05, sofa +0.40 / +1.00 / +1.42 -> +1.24 /
+# +1.29 / +1.43, frypan +0.90 / +1.35 / +1.74 -> +1.38 / +1.59 / +1.75, spot (not tuned on)
+# +1.18 / +1.65 / +1.86 -> +1.73 / +1.80 / +1.86.
 DEFAULT_CONFIG = {
     "steps": 300,
     "lr": 0.01,
