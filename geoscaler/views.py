@@ -181,6 +181,7 @@ class ViewCache:
         self.taps: list[list[TapMatrix | None]] = []
         self.untextured: list[torch.Tensor] = []  # per view (F, 3) at its object's pixels
         self.object_pixels: list[torch.Tensor] = []  # per view (F,) its foreground pixels
+        self._object_references: list[torch.Tensor] = []  # per view (F, 3) the reference
 
     def __len__(self) -> int:
         return len(self.views)
@@ -191,13 +192,14 @@ class ViewCache:
         while self.with_taps and len(self.taps) <= view:
             index = len(self.taps)
             gbuffer = self.views.gbuffers[index]
-            foreground = self.views.reference(index)[1].view(-1)
+            reference, foreground = (t.flatten(0, 1) for t in self.views.reference(index))
             pixels = torch.nonzero(foreground).squeeze(1)
             row_of_pixel = torch.full(foreground.shape, -1, dtype=torch.int32, device=pixels.device)
             row_of_pixel[pixels] = torch.arange(
                 len(pixels), dtype=torch.int32, device=pixels.device
             )
             self.object_pixels.append(pixels)
+            self._object_references.append(reference.index_select(0, pixels))
             self.taps.append(self._taps(gbuffer, row_of_pixel, len(pixels)))
             self.untextured.append(self._untextured(gbuffer).T.index_select(0, pixels))
 
@@ -278,10 +280,9 @@ class ViewCache:
 
     def object_reference(self, view: int) -> torch.Tensor:
         """``(F, 3)`` the reference's sRGB colours at the object's pixels of cached view
-        ``view``, in :attr:`object_pixels` order."""
+        ``view``, in :attr:`object_pixels` order (gathered once, with the view's taps)."""
         self.find_taps(view)
-        reference = self.views.reference(view)[0].view(-1, 3)
-        return reference.index_select(0, self.object_pixels[view])
+        return self._object_references[view]
 
     def object_linear(
         self,
