@@ -240,11 +240,28 @@ class MipLayout:
         return index, weight
 
     def taps(self, footprint: UVFootprint) -> tuple[torch.Tensor, torch.Tensor]:
-        """Trilinear taps of a GPU-style lookup of every sample of ``footprint``: ``(8, N)``."""
+        """The trilinear taps of a GPU-style lookup of every sample of ``footprint``,
+        sample-major: ``(index, weight)``, each ``(N, 8)``, the values of
+        :meth:`trilinear_taps` transposed, except that the coarser level's 4 taps are
+        index 0 and weight 0 where that level has no weight (magnified samples, most of a
+        typical view's): they are not computed there."""
         lod = self.level_of_detail(
             footprint.du_dx, footprint.dv_dx, footprint.du_dy, footprint.dv_dy
         )
-        return self.trilinear_taps(footprint.u, footprint.v, lod)
+        fine, coarse, blend = self.levels(lod)
+        u, v = footprint.u, footprint.v
+        index = torch.zeros(len(lod), 8, dtype=torch.int32, device=lod.device)
+        weight = torch.zeros(len(lod), 8, dtype=u.dtype, device=lod.device)
+        fine_index, fine_weight = self.bilinear_taps(u, v, fine)
+        index[:, :4] = fine_index.T
+        weight[:, :4] = (fine_weight * (1 - blend)).T
+        blended = torch.nonzero(blend > 0).squeeze(1)
+        if len(blended):
+            u, v, coarse, blend = (t.index_select(0, blended) for t in (u, v, coarse, blend))
+            coarse_index, coarse_weight = self.bilinear_taps(u, v, coarse)
+            index[blended, 4:] = coarse_index.T
+            weight[blended, 4:] = (coarse_weight * blend).T
+        return index, weight
 
 
 def gather(texels: torch.Tensor, index: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:

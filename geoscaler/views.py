@@ -233,11 +233,11 @@ class ViewCache:
             by_row = torch.argsort(row, stable=True)  # so the taps come sorted by row
             samples, row = samples[by_row], row[by_row]
             part = UVFootprint(*(t[samples] for t in footprint))
-            texel, weight = layout.taps(part)  # (8, n): sample-major after the transpose
-            keep = weight.T != 0
-            row = row.expand(len(texel), -1).T[keep]
+            texel, weight = layout.taps(part)  # (n, 8): sample-major, so sorted by row
+            keep = weight != 0
+            row = row[:, None].expand(-1, texel.shape[1])[keep]
             shape = (rows, layout.num_texels)
-            taps.append(TapMatrix(row, texel.T[keep], weight.T[keep] * share, shape))
+            taps.append(TapMatrix(row, texel[keep], weight[keep] * share, shape))
         return taps
 
     def _untextured(self, gbuffer: GBuffer | SoftFragments) -> torch.Tensor:

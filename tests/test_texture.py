@@ -145,6 +145,25 @@ def test_trilinear_is_the_sum_of_its_taps_magnified_or_not():
     assert torch.equal(texture.trilinear(u, v, lod)[:, :2], level0)  # magnified: level 0 alone
 
 
+def test_a_footprints_taps_are_the_trilinear_taps_by_sample_without_the_unweighted_level():
+    torch.manual_seed(2)
+    layout = MipLayout(8, 16)
+    u, v = torch.rand(5, dtype=torch.float64), torch.rand(5, dtype=torch.float64)
+    # isotropic footprints whose levels of detail are -2, -1, 0.25, 1.5 and 9 (clamped: 4)
+    scale = torch.tensor([0.25, 0.5, 2**0.25, 2**1.5, 2.0**9], dtype=torch.float64)
+    zero = torch.zeros(5, dtype=torch.float64)
+    footprint = UVFootprint(u, v, scale / 16, zero, zero, scale / 8)
+    index, weight = layout.taps(footprint)
+    lod = layout.level_of_detail(scale / 16, zero, zero, scale / 8)
+    expected_index, expected_weight = layout.trilinear_taps(u, v, lod)
+    torch.testing.assert_close(weight, expected_weight.T, atol=1e-15, rtol=0)
+    weighted = expected_weight.T != 0
+    assert torch.equal(index[weighted], expected_index.T[weighted])
+    unweighted_coarse = expected_weight.T[:, 4:].eq(0).all(1)
+    assert unweighted_coarse.tolist() == [True, True, False, False, True]
+    assert not index[unweighted_coarse, 4:].any()  # not computed there
+
+
 @pytest.mark.parametrize(
     ("jacobian", "expected"),
     [
