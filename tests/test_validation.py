@@ -70,7 +70,7 @@ def _validation(small, **kwargs) -> Validation:
     return Validation(validation_view_sets(renderer, 2), output_sizes(mesh, 4), **kwargs)
 
 
-def test_views_are_cached_where_the_smallest_share_is_and_frozen_at_least_at_the_minimum(small):
+def test_views_are_cached_where_fewest_are_and_frozen_at_least_at_the_minimum(small):
     validation = _validation(small)
     assert validation.num_views == 0 and validation.planned == 10
     validation.cache_next()
@@ -81,6 +81,16 @@ def test_views_are_cached_where_the_smallest_share_is_and_frozen_at_least_at_the
     validation.freeze()  # Q keeps 3 at least, each guard 2
     assert validation.counts == {"Q": 3, "near": 2, "far": 2} and validation.num_views == 7
     assert not validation.cache_next() and validation.counts["Q"] == 3
+
+
+def test_the_guards_get_as_many_views_as_q_until_they_are_complete(small):
+    validation = _validation(small)  # Q has 6 views, each guard 2
+    for _ in range(6):
+        validation.cache_next()
+    assert [len(c) for c in validation.sets.values()] == [2, 2, 2]
+    while validation.cache_next():
+        pass
+    assert [len(c) for c in validation.sets.values()] == [6, 2, 2]
 
 
 def test_the_floor_is_the_best_filter_on_each_set_and_the_rank_puts_clearing_it_first(small):
