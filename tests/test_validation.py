@@ -83,6 +83,13 @@ def test_views_are_cached_where_fewest_are_and_frozen_at_least_at_the_minimum(sm
     assert not validation.cache_next() and validation.counts["Q"] == 3
 
 
+def test_a_set_is_frozen_at_three_views_at_least(small):
+    mesh, renderer = small
+    validation = Validation(validation_view_sets(renderer, 3), output_sizes(mesh, 4))
+    validation.freeze()  # nothing cached before: each set caches its three
+    assert validation.counts == {"Q": 3, "near": 3, "far": 3}
+
+
 def test_the_guards_get_as_many_views_as_q_until_they_are_complete(small):
     validation = _validation(small)  # Q has 6 views, each guard 2
     for _ in range(6):
