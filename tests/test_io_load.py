@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -26,6 +28,7 @@ from PIL import Image
 from geoscaler.errors import GeoscalerError
 from geoscaler.io import image_to_texture, load_mesh, save_mesh
 from geoscaler.mesh import TexturedMesh
+from geoscaler.procedural import demo_mesh
 
 # ----------------------------------------------------------------------------- dev meshes
 
@@ -471,3 +474,20 @@ def test_obj_and_mtl_that_start_with_a_byte_order_mark_load(tmp_path):
     path = write_obj_asset(tmp_path, obj=bom + QUAD_OBJ, mtl=bom + "newmtl mat\nmap_Kd tex.png\n")
     mesh = load_mesh(path)
     np.testing.assert_array_equal(mesh.materials[0].base_color_texture, TEXTURE)
+
+
+def test_trimesh_is_imported_only_when_an_obj_is_read(tmp_path: Path):
+    save_mesh(demo_mesh(subdivisions=1, texture_size=8), tmp_path / "mesh.glb")
+    obj = write_obj_asset(tmp_path)
+    probe = (
+        "import sys\n"
+        "from geoscaler.io import load_mesh\n"
+        "import geoscaler.runner\n"
+        "load_mesh(sys.argv[1])\n"
+        "print('trimesh' in sys.modules, end=' ')\n"
+        "load_mesh(sys.argv[2])\n"
+        "print('trimesh' in sys.modules)\n"
+    )
+    command = [sys.executable, "-c", probe, str(tmp_path / "mesh.glb"), str(obj)]
+    done = subprocess.run(command, capture_output=True, text=True, check=True)
+    assert done.stdout == "False True\n"

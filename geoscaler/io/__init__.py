@@ -4,10 +4,11 @@ The in-memory form is :mod:`geoscaler.mesh`; this package owns the files:
 
 - :mod:`~geoscaler.io.load` / :mod:`~geoscaler.io.save`: :func:`load_mesh`, :func:`save_mesh`
   and :func:`output_files` (every file a save writes);
-- :mod:`~geoscaler.io.obj`: the OBJ + MTL format; :mod:`~geoscaler.io.gltf` (reading),
-  :mod:`~geoscaler.io.gltf_check`, :mod:`~geoscaler.io.gltf_scene` (geometry) and
-  :mod:`~geoscaler.io.gltf_write`: the glTF / GLB format; :mod:`~geoscaler.io.slots`: how
-  texture slots are named in each;
+- :mod:`~geoscaler.io.obj`: the OBJ + MTL format (:mod:`~geoscaler.io.obj_geometry`: its
+  geometry, read by trimesh, imported only when an OBJ is read);
+  :mod:`~geoscaler.io.gltf` (reading), :mod:`~geoscaler.io.gltf_check`,
+  :mod:`~geoscaler.io.gltf_scene` (geometry) and :mod:`~geoscaler.io.gltf_write`: the glTF /
+  GLB format; :mod:`~geoscaler.io.slots`: how texture slots are named in each;
 - :mod:`~geoscaler.io.assemble`: joining and welding the parts of a loaded scene;
 - :mod:`~geoscaler.io.images`: image decoding (:func:`image_to_texture`) and the one image
   encoder (:func:`encoded_image`: the input's bytes where a texture is unchanged);

@@ -11,10 +11,9 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
-import trimesh
 
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import (
@@ -30,7 +29,7 @@ from geoscaler.mesh import (
 
 
 class Part(NamedTuple):
-    """One placed geometry of a trimesh scene, in world space."""
+    """One placed geometry of a loaded scene, in world space."""
 
     positions: np.ndarray  # (n, 3) float64
     faces: np.ndarray  # (m, 3) int64
@@ -42,38 +41,6 @@ class Part(NamedTuple):
 
 MaterialBuilder = Callable[[], Material]
 """Builds one material of the file; called only for materials that faces use."""
-
-
-def scene_parts(scene: trimesh.Scene, material_of: Callable[[Any], int | None]) -> list[Part]:
-    """Every triangle geometry of ``scene`` placed by its node transform."""
-    parts = []
-    for node in scene.graph.nodes_geometry:
-        transform, name = scene.graph[node]
-        geometry = scene.geometry[name]
-        if isinstance(geometry, trimesh.Trimesh) and len(geometry.faces):
-            parts.append(place(geometry, np.asarray(transform, dtype=np.float64), material_of))
-    return parts
-
-
-def place(
-    geometry: trimesh.Trimesh, transform: np.ndarray, material_of: Callable[[Any], int | None]
-) -> Part:
-    """Apply a 4x4 transform to a trimesh geometry and read its UVs and file normals."""
-    linear = transform[:3, :3]
-    with np.errstate(invalid="ignore", over="ignore"):  # NaN and inf are refused later
-        positions = np.asarray(geometry.vertices, dtype=np.float64) @ linear.T + transform[:3, 3]
-    faces = np.asarray(geometry.faces, dtype=np.int64)
-    if np.linalg.det(linear) < 0:
-        faces = faces[:, ::-1]
-    uvs = getattr(geometry.visual, "uv", None)
-    if uvs is not None and np.shape(uvs) != (len(positions), 2):
-        uvs = None
-    normals = None
-    # trimesh caches normals given by the file; asking for them otherwise computes them.
-    if "vertex_normals" in geometry._cache and abs(np.linalg.det(linear)) > 0:
-        normals = np.asarray(geometry.vertex_normals, dtype=np.float64) @ np.linalg.inv(linear)
-    material = getattr(geometry.visual, "material", None)
-    return Part(positions, faces, uvs, normals, material_of(material))
 
 
 def assemble(

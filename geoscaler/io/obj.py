@@ -20,14 +20,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import trimesh
 
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import BASE_COLOR, Material, SourceImage, TexturedMesh
 
-from .assemble import MaterialBuilder, Part, scene_parts
+from .assemble import MaterialBuilder, Part
 from .images import open_image, source_image
-from .paths import ConstantResolver, resolve_reference
+from .paths import resolve_reference
 from .slots import MTL_KEYWORDS, MTL_MAPS, MTL_PREFIX, MTL_PROPERTIES
 
 if TYPE_CHECKING:
@@ -85,9 +84,9 @@ def load_obj(path: Path) -> tuple[list[Part], list[MaterialBuilder], list[Path]]
     ordered = list(entries.values())
     # trimesh only needs the names to group faces; a tag tells its materials apart.
     names_only = "".join(f"newmtl {e.name}\n{_OBJ_TAG} {i}\n" for i, e in enumerate(ordered))
-    resolver = ConstantResolver(names_only.encode())
-    scene = trimesh.load_scene(io.BytesIO(data), file_type="obj", resolver=resolver, process=False)
-    parts = scene_parts(scene, _obj_material_index)
+    from .obj_geometry import obj_parts  # imports trimesh: only when an OBJ is read
+
+    parts = obj_parts(data, names_only, _obj_material_index)
     decoded: dict[Path, tuple[SourceImage, bool]] = {}  # per file: its image, whether grey
     builders = [lambda e=entry: _obj_material(e, decoded) for entry in ordered]
     files = [path.resolve(), *libraries, *(f for e in ordered for f, _ in e.maps.values())]

@@ -1,7 +1,6 @@
 """Path safety: which files GeoScaler reads, and which it agrees to write.
 
-Reading: a mesh may only reference files inside its own folder (:func:`resolve_reference`), and
-trimesh (the OBJ geometry) reads through a resolver that never writes.
+Reading: a mesh may only reference files inside its own folder (:func:`resolve_reference`).
 
 Writing: :func:`check_outputs` is the one output-safety check, used by
 :func:`geoscaler.io.save_mesh` and by every command before it starts work. It refuses writing
@@ -15,9 +14,6 @@ import os
 import tempfile
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
-
-import trimesh
 
 from geoscaler.errors import GeoscalerError
 
@@ -70,29 +66,6 @@ def resolve_reference(ref: str, base: Path, root: Path, owner: Path, what: str) 
         f"{owner}: {what} {clean!r} was not found (looked for {target}). Put the file "
         f"there or correct the reference in {owner.name}."
     )
-
-
-class ReadOnlyResolver(trimesh.resolvers.Resolver):
-    """A trimesh resolver that never writes."""
-
-    def write(self, name: str, data: Any) -> None:
-        raise GeoscalerError("reading a mesh never writes files")
-
-    def namespaced(self, namespace: str) -> ReadOnlyResolver:
-        return self
-
-    def keys(self) -> list[str]:
-        return []
-
-
-class ConstantResolver(ReadOnlyResolver):
-    """Serves the same bytes whatever is asked: the material library trimesh's OBJ reader wants."""
-
-    def __init__(self, data: bytes):
-        self.data = data
-
-    def get(self, name: str) -> bytes:
-        return self.data
 
 
 # ----------------------------------------------------------------------------- writing
