@@ -156,7 +156,11 @@ def test_a_session_in_the_app(gui_runner, tmp_path):
         testing.capture(ctx, str(shots["training"]))
         seen["training label"] = app.session.candidate_label
 
-        ctx.item_click("//Bookmarks/Bookmark this view")
+        # Under load a frame can take longer than the engine's item lookup waits (once in
+        # three full suites it could not find the button): wait until it is there.
+        bookmark = "//Bookmarks/Bookmark this view"
+        assert wait_until(ctx, lambda: ctx.item_exists(bookmark), 30)
+        ctx.item_click(bookmark)
         ctx.item_click("//Optimise/Stop")
         assert wait_until(ctx, lambda: app.progress.result is not None, 60)
         ctx.yield_(2)
