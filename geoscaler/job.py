@@ -36,12 +36,13 @@ from geoscaler.io import (
 from geoscaler.maps import resize_alpha
 from geoscaler.mesh import Material, TexturedMesh, check_geometry
 from geoscaler.methods import MethodOptions, MethodResult, RunContext, is_learned, run_method
+from geoscaler.optimize import FINISH_MARGIN
 from geoscaler.protocol import GAIN_REFERENCE, REFERENCE_MAX_SIZE, VALIDATION_DISTANCE
 from geoscaler.render import Renderer
 from geoscaler.rows import protocol_row, validation_row
 from geoscaler.shipping import ShippedMap, alpha_cutoff
 from geoscaler.sizes import SizeRule
-from geoscaler.validation import Validation, validation_view_sets
+from geoscaler.validation import MIN_FROZEN, Validation, validation_view_sets
 from geoscaler.views import ViewCache, ViewSet
 
 REPORT_BASELINES = ("bicubic", "lanczos")
@@ -218,6 +219,9 @@ def compare_mesh(
             context = RunContext(
                 renderer, validation, controller, observer.on_event, budget, reserve
             )
+            if started_at is not None and not learned_fits(validation, budget, reserve):
+                outputs[name] = not_run(name, outputs, budget)
+                continue
             method_start = time.perf_counter()
             result = _run(mesh, rule, name, options, renderer, context, budget, observer)
             if started_at is not None and "first_step_seconds" in result.details:
@@ -276,21 +280,55 @@ class _Stages:
         self.observer.stage("done", self.total, self.total)
 
 
+def learned_fits(validation: Validation, budget: float | None, reserve: float) -> bool:
+    """Whether a learned method's least work fits in ``budget`` seconds (None: no budget):
+    one training view, then what its loop owes after any step (its start and its last
+    candidate validated, the baselines scored, the views the validation still needs, the rows'
+    scoring), with the loop's :data:`~geoscaler.optimize.FINISH_MARGIN`, and ``reserve``.
+
+    A lower bound of what the loop asks before its first step (``views_per_step`` training
+    views), priced on one validation view cached here first (the loop would cache it): a
+    method found not to fit could not have taken a step, and the validation it would still owe
+    is what overran short budgets (a 4096 scan's nine views at 15 s: 25-28 s of wall clock)."""
+    if budget is None:
+        return True
+    started = time.perf_counter()
+    validation.cache_next()
+    left = budget - (time.perf_counter() - started)
+    owed = FINISH_MARGIN * validation.seconds_needed(2, caching=True) + reserve
+    return validation.view_cost + owed <= left
+
+
+def not_run(name: str, filters: dict[str, MethodResult], budget: float | None) -> MethodResult:
+    """What ships for a learned method the budget had no time for (:func:`learned_fits`): the
+    filter it starts from (Lanczos; bicubic in a job without it), unvalidated, with the reason
+    in ``details["not_run"]``."""
+    start = "lanczos" if "lanczos" in filters else GAIN_REFERENCE
+    reason = (
+        f"the time budget ({budget:.1f} s left after loading and the filters) cannot hold a "
+        f"first step and the validation {name} owes after it"
+    )
+    details = {"shipped": start, "not_run": reason, "time_budget": budget}
+    return MethodResult(list(filters[start].textures), None, 0.0, details)
+
+
 def _cache_for_rows(
     validation: Validation, budget: float | None, started_at: float | None, reserve: float
 ) -> None:
-    """Before the rows of a job without a learned method: cache the validation views (all of
-    them, or under a budget those that leave time for the scoring and ``reserve``)."""
+    """Before the rows of a job whose learned method did not validate (or that has none):
+    cache the validation views (all of them, or under a budget those that leave time for the
+    scoring and ``reserve``). The rows score Q alone, so only Q must reach its least views."""
     if validation.frozen:
         return
+    least = {"Q": MIN_FROZEN["Q"]}
     if budget is None or started_at is None:
         validation.cache_all()
     else:
         end = started_at + budget - reserve
-        while time.perf_counter() + 2 * validation.seconds_needed(0, caching=True) < end:
+        while time.perf_counter() + 2 * validation.seconds_needed(0, True, least=least) < end:
             if not validation.cache_next():
                 break
-    validation.freeze()
+    validation.freeze(least)
 
 
 def _score_protocol_sets(

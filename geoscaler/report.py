@@ -306,6 +306,11 @@ def format_report(document: dict[str, Any]) -> str:
             )
     else:
         lines.append(f"{document['seconds']:.1f} s for the whole job")
+    if "not_run" in details:
+        lines.append(
+            f"{document['method']} not run: {details['not_run']}; shipped "
+            f"{details['shipped']}, unvalidated; give a larger --time-budget"
+        )
     lines.extend(_validation_lines(document["method"], details))
     lines.extend(_layout_lines(document["method"], details))
     lines.extend(_maps_lines(document))

@@ -236,12 +236,13 @@ class Validation:
         for name, cache in self.sets.items():
             cache.find_taps(self.counts[name] - 1)
 
-    def freeze(self) -> None:
-        """Validate on the views cached so far from now on (at least :data:`MIN_FROZEN`)."""
+    def freeze(self, least: Mapping[str, int] = MIN_FROZEN) -> None:
+        """Validate on the views cached so far from now on, caching first the ``least`` views of
+        each set (:data:`MIN_FROZEN`; a set not named there: none more)."""
         if self.frozen:
             return
         for name, cache in self.sets.items():
-            while len(cache) < MIN_FROZEN.get(name, 1) and cache.views.cache_next():
+            while len(cache) < least.get(name, 0) and cache.views.cache_next():
                 pass
         self.counts = {name: len(cache) for name, cache in self.sets.items()}
 
@@ -344,23 +345,28 @@ class Validation:
         PSNR-fg on Q. A candidate that clears the floor outranks every one that does not."""
         return self.shortfall(scores), scores["Q"]
 
-    def seconds_needed(self, validations: int, caching: bool, view_seconds: float = 0.0) -> float:
+    def seconds_needed(
+        self,
+        validations: int,
+        caching: bool,
+        view_seconds: float = 0.0,
+        least: Mapping[str, int] = MIN_FROZEN,
+    ) -> float:
         """An estimate of the seconds to finish: ``validations`` candidate validations (a
         render in every view, the metrics in Q's), the baselines' if not yet scored, the
         caller's scorings after (counted as one more computation of Q's metrics: they reuse
         the validation's renders, see :meth:`score`), and (``caching``) the views
-        :meth:`freeze` must still cache, each taking ``view_seconds`` until one of these
-        views is cached and timed (the renders are not counted before)."""
+        :meth:`freeze` must still cache to have ``least`` views in each set, each taking
+        ``view_seconds`` until one of these views is cached and timed (the renders are not
+        counted before)."""
         if self._baseline_scores is None:
             validations += len(self.baselines)
         q_views = self.counts["Q"] if self.counts else len(self.sets["Q"])
         seconds = self.num_views * validations * self._render_seconds
         seconds += q_views * (validations + self.scorings_after) * self._metric_seconds
         if caching and not self.frozen:
-            least = {
-                n: min(MIN_FROZEN.get(n, 1), len(c.views.cameras)) for n, c in self.sets.items()
-            }
-            missing = (max(least[n] - len(c), 0) for n, c in self.sets.items())
+            wanted = {n: min(least.get(n, 0), len(c.views.cameras)) for n, c in self.sets.items()}
+            missing = (max(wanted[n] - len(c), 0) for n, c in self.sets.items())
             seconds += (self._view_cost.mean or view_seconds) * sum(missing)
         return seconds
 

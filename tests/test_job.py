@@ -150,10 +150,10 @@ def budget_spy():
     registry.unregister("budget-spy")
 
 
-@pytest.mark.parametrize("already_spent", [25.0, 40.0])
+@pytest.mark.parametrize("already_spent", [20.0, 25.0])
 def test_a_whole_job_budget_leaves_the_method_only_what_is_left(budget_spy, already_spent):
     """With ``started_at`` the budget is the job's wall clock: the method gets the budget less
-    everything spent since the job began (here 25 s or 40 s before the comparison, as a slow
+    everything spent since the job began (here 20 s or 25 s before the comparison, as a slow
     load would), and the reserve for what comes after the job to keep."""
     mesh = demo_mesh(subdivisions=4, texture_size=64)
     options = MethodOptions(device="cpu", time_budget=30.0)
@@ -168,3 +168,24 @@ def test_a_whole_job_budget_leaves_the_method_only_what_is_left(budget_spy, alre
     ((budget, reserve),) = budget_spy
     upper = 30.0 - already_spent  # the job's own work before the method only lowers it
     assert max(upper - took, 1e-3) <= budget <= max(upper, 1e-3) and reserve == 2.0
+
+
+def test_a_learned_method_the_budget_cannot_hold_is_not_run_and_lanczos_ships(budget_spy, capsys):
+    """A budget spent before the method could cache a view and validate a step (here 40 s of a
+    30 s budget went on loading) does not run it: what ships is Lanczos, the learned methods'
+    start, unvalidated, and the rows score it on Q alone."""
+    mesh = demo_mesh(subdivisions=4, texture_size=64)
+    options = MethodOptions(device="cpu", time_budget=30.0)
+    renderer = Renderer(mesh, "cpu", Evaluation.quick((0, 31), image_size=64))
+    done = compare_mesh(
+        mesh, [4], ["budget-spy", "lanczos"], options=options, renderer=renderer,
+        started_at=time.perf_counter() - 40.0, rows_on="validation",
+    )  # fmt: skip
+    assert budget_spy == []  # never called
+    result, lanczos = done.outputs["budget-spy", 4], done.outputs["lanczos", 4]
+    assert result.details["shipped"] == "lanczos" and "steps" not in result.details
+    assert "cannot hold a first step" in result.details["not_run"]
+    assert np.array_equal(result.textures[0], lanczos.textures[0])
+    rows = {row["method"]: row for row in done.rows}
+    assert rows["budget-spy"]["psnr_fg"] == rows["lanczos"]["psnr_fg"]
+    assert rows["lanczos"]["views"] == 2  # Q's two views: the rows need no guard views

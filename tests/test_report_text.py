@@ -78,3 +78,14 @@ def test_backtracks_are_said_with_the_steps():
     )
     report["details"]["backtracks"] = 0
     assert "validation(s) ranked" not in format_report(report)
+
+
+def test_a_method_the_budget_had_no_time_for_is_said_with_what_shipped():
+    report = document(90_000, {})
+    report["details"] = {"shipped": "lanczos", "not_run": "the time budget (0.5 s left) ..."}
+    lines = format_report(report).splitlines()
+    at = lines.index("12.0 s for the whole job")
+    assert lines[at + 1] == (
+        "direct not run: the time budget (0.5 s left) ...; shipped lanczos, unvalidated; give a "
+        "larger --time-budget"
+    )

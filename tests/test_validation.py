@@ -90,6 +90,16 @@ def test_a_set_is_frozen_at_three_views_at_least(small):
     assert validation.counts == {"Q": 3, "near": 3, "far": 3}
 
 
+def test_a_validation_for_rows_on_q_freezes_without_guard_views(small):
+    validation = _validation(small)
+    least = {"Q": 3}
+    validation.cache_next()
+    validation._view_cost.total, validation._view_cost.views = 10.0, 1  # round figures
+    assert validation.seconds_needed(0, caching=True, least=least) == 2 * 10.0  # Q's two more
+    validation.freeze(least)
+    assert validation.counts == {"Q": 3, "near": 0, "far": 0}
+
+
 def test_the_guards_get_as_many_views_as_q_until_they_are_complete(small):
     validation = _validation(small)  # Q has 6 views, each guard 2
     for _ in range(6):

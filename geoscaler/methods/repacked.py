@@ -14,6 +14,7 @@ layouts on that shared validation (:func:`raced`).
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -33,7 +34,7 @@ from geoscaler.render import Renderer
 from geoscaler.sizes import COLOR, SizeRule
 from geoscaler.texture import texture_to_linear
 from geoscaler.uvmodes import check_uv_mode
-from geoscaler.validation import Validation, validation_view_sets
+from geoscaler.validation import MIN_FROZEN, Validation, validation_view_sets
 from geoscaler.views import ViewCache, ViewSet, training_views
 
 FOOTPRINT_VIEWS = 8
@@ -77,15 +78,19 @@ class LayoutValidation(Validation):
         self.freeze()
         return self.base.baseline_scores()
 
-    def seconds_needed(self, validations: int, caching: bool, view_seconds: float = 0.0) -> float:
+    def seconds_needed(
+        self,
+        validations: int,
+        caching: bool,
+        view_seconds: float = 0.0,
+        least: Mapping[str, int] = MIN_FROZEN,
+    ) -> float:
         """As :meth:`Validation.seconds_needed`, with the base's unit costs until this layout
         has measured its own (the same views and sizes), plus the taps of this layout still
         to find in the frozen views (a view's caching cost each: the views themselves are
         cached already, by the base)."""
-        if self._render_seconds:
-            seconds = super().seconds_needed(validations, caching, view_seconds)
-        else:
-            seconds = self.base.seconds_needed(validations, caching, view_seconds)
+        source = super() if self._render_seconds else self.base
+        seconds = source.seconds_needed(validations, caching, view_seconds, least)
         if not self.frozen:
             return seconds
         missing = sum(max(self.counts[n] - len(c.taps), 0) for n, c in self.sets.items())
