@@ -89,3 +89,12 @@ def test_a_method_the_budget_had_no_time_for_is_said_with_what_shipped():
         "direct not run: the time budget (0.5 s left) ...; shipped lanczos, unvalidated; give a "
         "larger --time-budget"
     )
+
+
+def test_a_run_the_budget_stopped_before_its_first_step_says_it_shipped_its_start():
+    report = document(90_000, {"Q": 30.0, "near": 29.0, "far": 28.0})
+    report["details"].update(steps=0, best_step=0, stopped_by="time budget", time_budget=15.0)
+    text = format_report(report)
+    assert "note: the time budget (15.0 s) left no time for a first step" in text
+    report["details"]["stopped_by"] = "stopped"  # Ctrl-C before the first step: no such note
+    assert "left no time for a first step" not in format_report(report)
