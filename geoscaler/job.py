@@ -150,7 +150,8 @@ def compare_mesh(
     The filters run first; they are the *baselines* of the learned methods, which validate on a
     :class:`~geoscaler.validation.Validation` (Q and near/far guards, cached while they train)
     and ship their result only where it clears the best baseline on every validation set
-    (:func:`no_worse_than_filters`).
+    (:func:`no_worse_than_filters`). Under a job-wide budget a learned method that cannot take
+    a step in what is left is not run, and its Lanczos start ships (:func:`learned_fits`).
 
     Args:
         mesh: the mesh; its textures are the originals.
