@@ -36,7 +36,6 @@ from geoscaler.io import (
 from geoscaler.maps import resize_alpha
 from geoscaler.mesh import Material, TexturedMesh, check_geometry
 from geoscaler.methods import MethodOptions, MethodResult, RunContext, is_learned, run_method
-from geoscaler.optimize import FINISH_MARGIN
 from geoscaler.protocol import GAIN_REFERENCE, REFERENCE_MAX_SIZE, VALIDATION_DISTANCE
 from geoscaler.render import Renderer
 from geoscaler.rows import protocol_row, validation_row
@@ -283,22 +282,24 @@ class _Stages:
 
 
 def learned_fits(validation: Validation, budget: float | None, reserve: float) -> bool:
-    """Whether a learned method can take a step in ``budget`` seconds (None: no budget): the
-    loop's test before its first step (:data:`~geoscaler.optimize.FINISH_MARGIN` on what it
-    owes after any step: its start and its last candidate validated, the baselines scored,
-    the views the validation still needs, the rows' scoring; then ``reserve``), with one
-    training view where the loop asks ``views_per_step``.
+    """Whether the least a learned method does fits in ``budget`` seconds (None: no budget):
+    one view more, then what its loop owes whether or not it steps (its start and a candidate
+    validated, the baselines scored, the views the validation still needs, the rows' scoring),
+    then ``reserve``. Where this does not fit, the loop could not take a step (it asks
+    ``views_per_step`` views and :data:`~geoscaler.optimize.FINISH_MARGIN` on the same
+    estimate) and would still validate its start: what overran short budgets (a 4096 scan's
+    nine views at 15 s: 25-28 s of wall clock).
 
     Views are priced on one validation view cached here first (the loop would cache it), after
-    the reference textures are made (bob's first view cost 0.83 s with them, 0.37 without). A
-    method found not to fit could not have taken a step, and the validation it would still owe
-    is what overran short budgets (a 4096 scan's nine views at 15 s: 25-28 s of wall clock)."""
+    the reference textures are made (bob's first view cost 0.83 s with them, 0.37 without).
+    Not the loop's test itself: with its margin, 15 s runs that had made 19-64 steps within
+    the budget (the cat, the frypan) were not run."""
     if budget is None:
         return True
     started = time.perf_counter()
     validation.cache_next()
     left = budget - (time.perf_counter() - started)
-    owed = FINISH_MARGIN * validation.seconds_needed(2, caching=True) + reserve
+    owed = validation.seconds_needed(2, caching=True) + reserve
     return validation.view_cost + owed <= left
 
 
