@@ -309,8 +309,8 @@ def not_run(name: str, filters: dict[str, MethodResult], budget: float | None) -
     in ``details["not_run"]``."""
     start = "lanczos" if "lanczos" in filters else GAIN_REFERENCE
     reason = (
-        f"the time budget ({budget:.1f} s left after loading and the filters) cannot hold a "
-        f"first step and the validation {name} owes after it"
+        f"the time budget ({budget:.1f} s left after loading and the filters) cannot hold "
+        f"the validation {name} owes even without a step"
     )
     details = {"shipped": start, "not_run": reason, "time_budget": budget}
     return MethodResult(list(filters[start].textures), None, 0.0, details)
