@@ -64,9 +64,10 @@ DEMO_STEPS = 120
 idle 2-core machine (CPU, 2 torch threads), ``make demo`` from a fresh ``assets/``: the first
 step 21.5 s after the start (the asset built, the layout planned and baked, views cached), then
 64 steps (validations included) until the budget stopped them; 74.3 s wall clock in all,
-+4.28 dB PSNR-fg over bicubic on the validation's Q. The step limit lets the cosine schedule
-end where the machine is fast enough; the budget bounds the demo's time where it is not. On a
-machine shared with other CPU work the demo takes longer and may run few or no steps."""
++4.28 dB PSNR-fg over bicubic on the validation's Q. At commit 20fdc3d, on a 2-core machine 2-3
+times slower: 58.1 s wall, 120 steps, +4.93 dB; beside a busy loop 64.9 s, 120 steps, +4.69 dB.
+The step limit lets the cosine schedule end where the machine is fast enough; the budget bounds
+the demo's time where it is not."""
 DEMO_UV = "repack"
 """``--uv`` of the demo's ``direct``: the pebble's atlas is a scan's, mostly empty, and the demo
 shows what repacking it gains. (``auto``'s race spends most of the demo's budget on its fixed
