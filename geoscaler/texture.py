@@ -230,26 +230,11 @@ class MipLayout:
             lod: ``(N,)`` level of detail, clamped here to ``[0, num_levels - 1]``.
 
         Returns:
-            ``(index, weight)``, each ``(8, N)``: the finer level's 4 taps, then the coarser's.
+            ``(index, weight)``, each ``(N, 8)`` (sample-major): the finer level's 4 taps, then
+            the coarser's, which are index 0 and weight 0 where that level has no weight
+            (magnified samples, most of a typical view's): they are not computed there.
         """
         fine, coarse, blend = self.levels(lod)
-        fine_index, fine_weight = self.bilinear_taps(u, v, fine)
-        coarse_index, coarse_weight = self.bilinear_taps(u, v, coarse)
-        index = torch.cat([fine_index, coarse_index])
-        weight = torch.cat([fine_weight * (1 - blend), coarse_weight * blend])
-        return index, weight
-
-    def taps(self, footprint: UVFootprint) -> tuple[torch.Tensor, torch.Tensor]:
-        """The trilinear taps of a GPU-style lookup of every sample of ``footprint``,
-        sample-major: ``(index, weight)``, each ``(N, 8)``, the values of
-        :meth:`trilinear_taps` transposed, except that the coarser level's 4 taps are
-        index 0 and weight 0 where that level has no weight (magnified samples, most of a
-        typical view's): they are not computed there."""
-        lod = self.level_of_detail(
-            footprint.du_dx, footprint.dv_dx, footprint.du_dy, footprint.dv_dy
-        )
-        fine, coarse, blend = self.levels(lod)
-        u, v = footprint.u, footprint.v
         index = torch.zeros(len(lod), 8, dtype=torch.int32, device=lod.device)
         weight = torch.zeros(len(lod), 8, dtype=u.dtype, device=lod.device)
         fine_index, fine_weight = self.bilinear_taps(u, v, fine)
@@ -262,6 +247,14 @@ class MipLayout:
             index[blended, 4:] = coarse_index.T
             weight[blended, 4:] = (coarse_weight * blend).T
         return index, weight
+
+    def taps(self, footprint: UVFootprint) -> tuple[torch.Tensor, torch.Tensor]:
+        """Trilinear taps of a GPU-style lookup of every sample of ``footprint``: ``(N, 8)``
+        each (:meth:`trilinear_taps`)."""
+        lod = self.level_of_detail(
+            footprint.du_dx, footprint.dv_dx, footprint.du_dy, footprint.dv_dy
+        )
+        return self.trilinear_taps(footprint.u, footprint.v, lod)
 
 
 def gather(texels: torch.Tensor, index: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
