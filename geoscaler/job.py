@@ -219,10 +219,11 @@ def compare_mesh(
             context = RunContext(
                 renderer, validation, controller, observer.on_event, budget, reserve
             )
-            renderer.reference_textures()  # made once, before a view is priced: not its cost
-            if started_at is not None and not learned_fits(validation, budget, reserve):
-                outputs[name] = not_run(name, outputs, budget)
-                continue
+            if started_at is not None:
+                renderer.reference_textures()  # made once, before a view is priced
+                if not learned_fits(validation, budget, reserve):
+                    outputs[name] = not_run(name, outputs, budget)
+                    continue
             method_start = time.perf_counter()
             result = _run(mesh, rule, name, options, renderer, context, budget, observer)
             if started_at is not None and "first_step_seconds" in result.details:
@@ -303,7 +304,7 @@ def learned_fits(validation: Validation, budget: float | None, reserve: float) -
     return validation.view_cost + owed <= left
 
 
-def not_run(name: str, filters: dict[str, MethodResult], budget: float | None) -> MethodResult:
+def not_run(name: str, filters: dict[str, MethodResult], budget: float) -> MethodResult:
     """What ships for a learned method the budget had no time for (:func:`learned_fits`): the
     filter it starts from (Lanczos; bicubic in a job without it), unvalidated, with the reason
     in ``details["not_run"]``."""
