@@ -1,9 +1,10 @@
 """Seconds per training step of ``direct``, as its loop takes them: K views rendered from cached
 taps, the default loss, backward, AdamW.
 
-For each mesh it caches ``--pool`` training views at the loop's training distances, takes a few
-steps to warm up (the first backward pass through a view also makes its taps' transpose), then
-times ``--steps`` steps of ``--views`` views each and prints the median.
+For each mesh it caches ``--pool`` training views at the loop's training distances (timed: the
+G-buffer and reference render of each view, then its taps), takes a few steps to warm up (the
+first backward pass through a view also makes its taps' transpose), then times ``--steps``
+steps of ``--views`` views each and prints the medians.
 
 To compare two versions, run this file from each checkout in turn, interleaved, with the same
 arguments (timings on a shared machine drift between runs):
@@ -36,8 +37,11 @@ from geoscaler.render import Renderer
 from geoscaler.views import training_views
 
 
-def step_seconds(path: str, scale: int, views: int, pool: int, steps: int) -> list[float]:
-    """Seconds of each of ``steps`` timed training steps on the mesh at ``path``."""
+def step_seconds(
+    path: str, scale: int, views: int, pool: int, steps: int
+) -> tuple[list[float], list[float], list[float]]:
+    """Seconds of each view's G-buffer and reference, of each view's taps, and of each of
+    ``steps`` timed training steps on the mesh at ``path``."""
     mesh = load_mesh(path)
     renderer = Renderer(mesh, "cpu")
     (rule,) = check_rules([scale])
@@ -45,8 +49,15 @@ def step_seconds(path: str, scale: int, views: int, pool: int, steps: int) -> li
     cache = training_views(
         renderer, sample_training_cameras(pool, 0, TRAINING_RANGE), sizes, with_taps=True
     )
-    while cache.views.cache_next():
-        pass
+    view_seconds, tap_seconds = [], []
+    while True:
+        started = time.perf_counter()
+        if not cache.views.cache_next():
+            break
+        cached = time.perf_counter()
+        cache.find_taps(len(cache) - 1)
+        view_seconds.append(cached - started)
+        tap_seconds.append(time.perf_counter() - cached)
     model = lanczos_texel_model(mesh, rule, renderer)
     config = OptimizeConfig(ssim_weight=DEFAULT_CONFIG["ssim_weight"])
     optimizer = AdamW(model.parameters(), lr=1e-3)
@@ -58,7 +69,7 @@ def step_seconds(path: str, scale: int, views: int, pool: int, steps: int) -> li
         started = time.perf_counter()
         train_step(cache, model, optimizer, order[index % len(order)], config, lambda: 1.0)
         seconds.append(time.perf_counter() - started)
-    return seconds
+    return view_seconds, tap_seconds, seconds
 
 
 def main() -> int:
@@ -72,8 +83,12 @@ def main() -> int:
     configure_process()
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads")
     for path in args.meshes:
-        seconds = step_seconds(path, args.scale, args.views, args.pool, args.steps)
-        print(f"{path}: median {statistics.median(seconds):.4f} s per step of {args.views} views")
+        views, taps, steps = step_seconds(path, args.scale, args.views, args.pool, args.steps)
+        print(
+            f"{path}: median s per view {statistics.median(views):.4f} (G-buffer, reference) "
+            f"+ {statistics.median(taps):.4f} (taps); per step of {args.views} views "
+            f"{statistics.median(steps):.4f}"
+        )
     return 0
 
 

@@ -222,35 +222,45 @@ class MipLayout:
 
     def trilinear_taps(
         self, u: torch.Tensor, v: torch.Tensor, lod: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The 8 taps of trilinear filtering: bilinear on the two levels around ``lod``.
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The taps of trilinear filtering: bilinear on the two levels around ``lod``.
 
         Args:
             u, v: ``(N,)`` texture coordinates.
             lod: ``(N,)`` level of detail, clamped here to ``[0, num_levels - 1]``.
 
         Returns:
-            ``(index, weight)``, each ``(N, 8)`` (sample-major): the finer level's 4 taps, then
-            the coarser's, which are index 0 and weight 0 where that level has no weight
-            (magnified samples, most of a typical view's): they are not computed there.
+            ``(count, index, weight)``: ``(N,)`` int32 taps of each sample, 4 where the coarser
+            level has no weight (magnified samples, most of a typical view's: that level is
+            not computed there) and 8 elsewhere; ``(E,)`` int32 texels and float weights,
+            sample by sample, the finer level's 4 taps before the coarser's.
         """
         fine, coarse, blend = self.levels(lod)
-        index = torch.zeros(len(lod), 8, dtype=torch.int32, device=lod.device)
-        weight = torch.zeros(len(lod), 8, dtype=u.dtype, device=lod.device)
-        fine_index, fine_weight = self.bilinear_taps(u, v, fine)
-        index[:, :4] = fine_index.T
-        weight[:, :4] = (fine_weight * (1 - blend)).T
+        fine_index, fine_weight = self.bilinear_taps(u, v, fine)  # (4, N) each
+        fine_index = fine_index.T.reshape(-1)  # sample-major
+        fine_weight = (fine_weight * (1 - blend)).T.reshape(-1)
+        count = torch.full_like(fine, 4)
         blended = torch.nonzero(blend > 0).squeeze(1)
-        if len(blended):
-            u, v, coarse, blend = (t.index_select(0, blended) for t in (u, v, coarse, blend))
-            coarse_index, coarse_weight = self.bilinear_taps(u, v, coarse)
-            index[blended, 4:] = coarse_index.T
-            weight[blended, 4:] = (coarse_weight * blend).T
-        return index, weight
+        if len(blended) == 0:
+            return count, fine_index, fine_weight
+        u, v, coarse, blend = (t.index_select(0, blended) for t in (u, v, coarse, blend))
+        coarse_index, coarse_weight = self.bilinear_taps(u, v, coarse)
+        count.index_fill_(0, blended, 8)
+        first = torch.cumsum(count, 0, dtype=torch.int64) - count  # each sample's first tap
+        four = torch.arange(4, device=lod.device)
+        fine_at = (first[:, None] + four).view(-1)
+        coarse_at = (first.index_select(0, blended)[:, None] + 4 + four).view(-1)
+        index = fine_index.new_empty(len(fine_index) + len(coarse_at))
+        weight = fine_weight.new_empty(len(index))
+        index.index_copy_(0, fine_at, fine_index)
+        index.index_copy_(0, coarse_at, coarse_index.T.reshape(-1))
+        weight.index_copy_(0, fine_at, fine_weight)
+        weight.index_copy_(0, coarse_at, (coarse_weight * blend).T.reshape(-1))
+        return count, index, weight
 
-    def taps(self, footprint: UVFootprint) -> tuple[torch.Tensor, torch.Tensor]:
-        """Trilinear taps of a GPU-style lookup of every sample of ``footprint``: ``(N, 8)``
-        each (:meth:`trilinear_taps`)."""
+    def taps(self, footprint: UVFootprint) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Trilinear taps of a GPU-style lookup of every sample of ``footprint``: ``(count,
+        index, weight)`` (:meth:`trilinear_taps`)."""
         lod = self.level_of_detail(
             footprint.du_dx, footprint.dv_dx, footprint.du_dy, footprint.dv_dy
         )
@@ -314,6 +324,17 @@ class TapMatrix:
         self.shape = shape
         self.matrix = _csr(row, texel, weight, shape)
 
+    @classmethod
+    def by_rows(
+        cls, counts: torch.Tensor, texel: torch.Tensor, weight: torch.Tensor, shape: tuple[int, int]
+    ) -> TapMatrix:
+        """Taps already in row order: ``(R,)`` how many taps each row has, then ``(M,)`` their
+        texels and weights, row 0's first (nothing to sort or count)."""
+        taps = cls.__new__(cls)
+        taps.shape = shape
+        taps.matrix = _csr_by_rows(counts, texel, weight, shape)
+        return taps
+
     @property
     def texel(self) -> torch.Tensor:
         """``(M,)`` int32 texel of every tap, by row."""
@@ -365,8 +386,14 @@ def _csr(
     if len(row) > 1 and not bool((row[1:] >= row[:-1]).all()):
         order = torch.argsort(row, stable=True)
         row, column, value = row[order], column[order], value[order]
-    counts = torch.bincount(row.long(), minlength=shape[0])
-    crow = torch.zeros(shape[0] + 1, dtype=torch.int32, device=row.device)
+    return _csr_by_rows(torch.bincount(row.long(), minlength=shape[0]), column, value, shape)
+
+
+def _csr_by_rows(
+    counts: torch.Tensor, column: torch.Tensor, value: torch.Tensor, shape: tuple[int, int]
+) -> torch.Tensor:
+    """A CSR matrix of entries in row order, ``counts[r]`` of them in row ``r``."""
+    crow = torch.zeros(shape[0] + 1, dtype=torch.int32, device=column.device)
     crow[1:] = torch.cumsum(counts, 0)
     return torch.sparse_csr_tensor(crow, column.int(), value, shape, check_invariants=False)
 

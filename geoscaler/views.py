@@ -209,8 +209,8 @@ class ViewCache:
         """Per material the view's lookups folded into its object's pixels (``row_of_pixel``:
         each pixel's row of the ``rows`` rows): with fixed UVs a rendered pixel (before sRGB
         encoding) is a fixed weighted sum of texels of the candidate's mip chain, its samples'
-        trilinear taps each weighted 1 / samples per pixel (taps of zero weight, the unused
-        level of a magnified sample, are dropped); None: untextured or unseen."""
+        trilinear taps each weighted 1 / samples per pixel (a magnified sample taps its finer
+        level alone); None: untextured or unseen."""
         if isinstance(gbuffer, SoftFragments):
             found = self.renderer.pixel_taps(gbuffer, self.layouts)
             return [
@@ -220,30 +220,35 @@ class ViewCache:
                 for taps, layout in zip(found, self.layouts, strict=True)
             ]
         footprint = self.renderer.footprint(gbuffer)
-        material = self.renderer.face_material.index_select(0, gbuffer.tri_ids)
         row_of_sample = row_of_pixel.index_select(0, self.renderer.pixel_of_sample(gbuffer))
+        by_row = torch.argsort(row_of_sample, stable=True)  # so the taps come in row order
+        per_material = [by_row]
+        if len(self.layouts) > 1:
+            tri_ids = gbuffer.tri_ids.index_select(0, by_row)
+            material = self.renderer.face_material.index_select(0, tri_ids)
+            per_material = [by_row[material == index] for index in range(len(self.layouts))]
         share = 1.0 / self.renderer.supersample**2
         taps: list[TapMatrix | None] = []
-        for index, layout in enumerate(self.layouts):
-            samples = torch.nonzero(material == index).squeeze(1)
+        for layout, samples in zip(self.layouts, per_material, strict=True):
             if layout is None or len(samples) == 0:
                 taps.append(None)
                 continue
+            count, texel, weight = layout.taps(
+                UVFootprint(*(t.index_select(0, samples) for t in footprint))
+            )
             row = row_of_sample.index_select(0, samples)
-            by_row = torch.argsort(row, stable=True)  # so the taps come sorted by row
-            samples, row = samples[by_row], row[by_row]
-            part = UVFootprint(*(t[samples] for t in footprint))
-            texel, weight = layout.taps(part)  # (n, 8): sample-major, so sorted by row
-            keep = weight != 0
-            row = row[:, None].expand(-1, texel.shape[1])[keep]
+            per_row = torch.zeros(rows, dtype=torch.int64, device=row.device)
+            per_row.index_add_(0, row, count.long())
             shape = (rows, layout.num_texels)
-            taps.append(TapMatrix(row, texel[keep], weight[keep] * share, shape))
+            taps.append(TapMatrix.by_rows(per_row, texel, weight * share, shape))
         return taps
 
     def _untextured(self, gbuffer: GBuffer | SoftFragments) -> torch.Tensor:
         """``(3, pixels)`` linear colour contributed by samples of untextured materials."""
         if isinstance(gbuffer, SoftFragments):
             return self.renderer.untextured(gbuffer, [layout is None for layout in self.layouts])
+        if all(layout is not None for layout in self.layouts):
+            return torch.zeros(3, self.renderer.image_size**2, device=self.renderer.device)
         material = self.renderer.face_material.index_select(0, gbuffer.tri_ids)
         plain = torch.tensor([layout is None for layout in self.layouts], device=material.device)
         hit = torch.nonzero(plain[material]).squeeze(1)

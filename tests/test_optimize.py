@@ -224,6 +224,27 @@ def test_cached_taps_render_exactly_what_the_renderer_renders(scene):
         )
 
 
+def test_cached_taps_render_every_material_as_the_renderer_does():
+    # two textured materials of different sizes and an untextured one, seen near (texels
+    # magnified: one mip level tapped) and far (minified: two)
+    mesh = three_material_demo()
+    renderer = Renderer(mesh, "cpu", Evaluation(image_size=32))
+    cameras = [validation_cameras(distance)[view] for distance in (1.5, 6.0) for view in (0, 7)]
+    views = ViewSet(renderer, cameras)
+    sizes = [(8, 8), (16, 8), None]
+    cached = ViewCache(views, sizes, with_taps=True)
+    general = ViewCache(views, sizes, with_taps=False)
+    generator = torch.Generator().manual_seed(3)
+    textures = [torch.rand(*size, 3, generator=generator) for size in sizes[:2]] + [None]
+    for view in range(len(views)):
+        torch.testing.assert_close(
+            cached.render(view, textures, None),
+            general.render(view, textures, None),
+            atol=2e-6,
+            rtol=0,
+        )
+
+
 def test_the_l2_loss_on_the_objects_pixels_is_the_loss_of_the_full_render(scene):
     _, _, views = scene
     cache = ViewCache(views["Q"], [(32, 32)], with_taps=True)

@@ -138,8 +138,11 @@ def test_trilinear_is_the_sum_of_its_taps_magnified_or_not():
     texture = MipTexture(torch.rand(8, 16, 3, dtype=torch.float64))
     u, v = torch.rand(7, dtype=torch.float64), torch.rand(7, dtype=torch.float64)
     lod = torch.tensor([-2.0, -1e-9, 0.0, 0.25, 1.5, 3.0, 9.0], dtype=torch.float64)
-    index, weight = texture.layout.trilinear_taps(u, v, lod)  # (N, 8) each
-    expected = (texture.texels[:, index] * weight).sum(2)
+    count, index, weight = texture.layout.trilinear_taps(u, v, lod)
+    sample = torch.repeat_interleave(torch.arange(7), count.long())  # each tap's sample
+    expected = torch.zeros(3, 7, dtype=torch.float64).index_add(
+        1, sample, texture.texels[:, index] * weight
+    )
     torch.testing.assert_close(texture.trilinear(u, v, lod), expected, atol=1e-12, rtol=0)
     level0 = texture.bilinear(u[:2], v[:2], torch.zeros(2, dtype=torch.int32))
     assert torch.equal(texture.trilinear(u, v, lod)[:, :2], level0)  # magnified: level 0 alone
@@ -152,19 +155,18 @@ def test_trilinear_taps_are_bilinear_on_two_levels_and_skip_the_unweighted_one()
     # isotropic footprints whose levels of detail are -2, -1, 0.25, 1.5 and 9 (clamped: 4)
     scale = torch.tensor([0.25, 0.5, 2**0.25, 2**1.5, 2.0**9], dtype=torch.float64)
     zero = torch.zeros(5, dtype=torch.float64)
-    index, weight = layout.taps(UVFootprint(u, v, scale / 16, zero, zero, scale / 8))
+    count, index, weight = layout.taps(UVFootprint(u, v, scale / 16, zero, zero, scale / 8))
+    assert count.tolist() == [4, 4, 8, 8, 4]  # the coarser level only where it has weight
     lod = layout.level_of_detail(scale / 16, zero, zero, scale / 8)
     fine, coarse, blend = layout.levels(lod)
     fine_index, fine_weight = layout.bilinear_taps(u, v, fine)
     coarse_index, coarse_weight = layout.bilinear_taps(u, v, coarse)
-    expected_index = torch.cat([fine_index, coarse_index]).T
+    expected_index = torch.cat([fine_index, coarse_index]).T  # (5, 8)
     expected_weight = torch.cat([fine_weight * (1 - blend), coarse_weight * blend]).T
-    torch.testing.assert_close(weight, expected_weight, atol=1e-15, rtol=0)
-    weighted = expected_weight != 0
-    assert torch.equal(index[weighted], expected_index[weighted])
-    unweighted_coarse = expected_weight[:, 4:].eq(0).all(1)
-    assert unweighted_coarse.tolist() == [True, True, False, False, True]
-    assert not index[unweighted_coarse, 4:].any()  # not computed there
+    tapped = torch.arange(8) < count[:, None]  # sample by sample, fine level first
+    assert torch.equal(index, expected_index[tapped])
+    torch.testing.assert_close(weight, expected_weight[tapped], atol=1e-15, rtol=0)
+    assert bool(expected_weight[~tapped].eq(0).all())  # what is skipped weighs nothing
 
 
 @pytest.mark.parametrize(
