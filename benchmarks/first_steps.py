@@ -28,7 +28,7 @@ from geoscaler.io import load_mesh
 from geoscaler.methods import run_method
 from geoscaler.methods.direct import DEFAULT_CONFIG, lanczos_texel_model
 from geoscaler.methods.registry import RunContext
-from geoscaler.optimize import TRAINING_RANGE, OptimizeConfig, optimize
+from geoscaler.optimize import TRAINING_RANGES, OptimizeConfig, optimize
 from geoscaler.protocol import PROTOCOL_EVALUATION
 from geoscaler.render import Renderer
 from geoscaler.validation import Validation
@@ -50,7 +50,7 @@ def gains(path: Path, scale: int, steps: list[int], pool_views: int) -> dict[str
     validation = Validation({"Q": ViewSet(renderer, q_cameras)}, sizes)
     validation.cache_all()
     validation.freeze()
-    cameras = sample_training_cameras(pool_views, 0, TRAINING_RANGE)
+    cameras = sample_training_cameras(pool_views, 0, TRAINING_RANGES)
     pool = training_views(renderer, cameras, sizes, True)
     while pool.views.cache_next():
         pass

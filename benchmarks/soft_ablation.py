@@ -43,7 +43,7 @@ from geoscaler.io import load_mesh
 from geoscaler.job import no_worse_than_filters
 from geoscaler.methods import MethodOptions, MethodResult, RunContext, run_method
 from geoscaler.methods.direct import TexelModel
-from geoscaler.optimize import TRAINING_RANGE, OptimizeConfig, finish, train_step
+from geoscaler.optimize import TRAINING_RANGES, OptimizeConfig, finish, train_step
 from geoscaler.protocol import (
     FAR_DISTANCE,
     NEAR_DISTANCE,
@@ -93,7 +93,7 @@ def mesh_rows(entry: MeshEntry, args) -> list[dict]:
         validation = Validation(view_sets, sizes, {n: r.textures for n, r in filters.items()})
         validation.cache_all()  # before the runs: no run's seconds include it
         results = {(name, "-"): result for name, result in filters.items()}
-        masks = reachable_masks(mesh, sizes, max(TRAINING_RANGE), renderer.resolution)
+        masks = reachable_masks(mesh, sizes, max(TRAINING_RANGES), renderer.resolution)
         reachable = [None if m is None else m.to(renderer.device) for m in masks]
         for renderer_name in args.renderers:
             for method in args.methods:
@@ -166,7 +166,7 @@ def step_seconds(entry: MeshEntry, args) -> None:
     mesh = load_mesh(entry.path)
     renderer = Renderer(mesh, args.device)
     scale = args.scale[0]
-    cameras = sample_training_cameras(4, args.seed, TRAINING_RANGE)
+    cameras = sample_training_cameras(4, args.seed, TRAINING_RANGES)
     sizes = output_sizes(mesh, scale)
     starts = [None if t is None else lanczos(t, scale) for t in reference_textures(mesh)]
     config = OptimizeConfig(lr=0.005, ssim_weight=0.0)

@@ -31,7 +31,7 @@ from geoscaler.cameras import sample_training_cameras
 from geoscaler.filters import output_sizes
 from geoscaler.io import load_mesh
 from geoscaler.methods.direct import DEFAULT_CONFIG, lanczos_texel_model
-from geoscaler.optimize import TRAINING_RANGE, OptimizeConfig, train_step
+from geoscaler.optimize import TRAINING_RANGES, OptimizeConfig, train_step
 from geoscaler.process import configure_process
 from geoscaler.render import Renderer
 from geoscaler.views import training_views
@@ -47,7 +47,7 @@ def step_seconds(
     (rule,) = check_rules([scale])
     sizes = output_sizes(mesh, rule, renderer.evaluation.reference_max_size)
     cache = training_views(
-        renderer, sample_training_cameras(pool, 0, TRAINING_RANGE), sizes, with_taps=True
+        renderer, sample_training_cameras(pool, 0, TRAINING_RANGES), sizes, with_taps=True
     )
     view_seconds, tap_seconds = [], []
     while True:

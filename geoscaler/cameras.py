@@ -9,6 +9,7 @@ pixel centres lie at half-integers, as GL rasterises.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -97,15 +98,19 @@ def validation_cameras(distance: float = VALIDATION_DISTANCE) -> list[Camera]:
 def sample_training_cameras(
     count: int,
     seed: int,
-    distances: tuple[float, float] = RANGE_S,
+    distances: Sequence[float] | Sequence[Sequence[float]] = RANGE_S,
 ) -> list[Camera]:
     """Range S: directions uniform on the sphere, distance uniform in ``distances``.
 
+    ``distances`` is one ``(nearest, farthest)`` range, or several taken in turn (camera ``i``
+    from range ``i`` modulo their count), so that any first cameras of the list mix them.
     The same ``seed`` always gives the same cameras.
     """
     rng = np.random.default_rng(seed)
     directions = _unit(rng.standard_normal((count, 3)))
-    lengths = rng.uniform(distances[0], distances[1], size=count)
+    ranges = np.atleast_2d(np.asarray(distances, dtype=np.float64))
+    chosen = ranges[np.arange(count) % len(ranges)]
+    lengths = rng.uniform(chosen[:, 0], chosen[:, 1])
     return [Camera(tuple(d), float(r)) for d, r in zip(directions, lengths, strict=True)]
 
 

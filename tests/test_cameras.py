@@ -41,6 +41,16 @@ def test_training_cameras_are_seeded_and_in_range():
     np.testing.assert_allclose(np.linalg.norm([c.direction for c in first], axis=1), 1.0)
 
 
+def test_training_cameras_take_several_ranges_in_turn():
+    cameras = sample_training_cameras(40, seed=3, distances=((2.0, 2.5), (3.5, 4.0)))
+    distances = np.array([c.distance for c in cameras])
+    assert ((distances[0::2] >= 2.0) & (distances[0::2] <= 2.5)).all()
+    assert ((distances[1::2] >= 3.5) & (distances[1::2] <= 4.0)).all()
+    # the directions do not depend on the ranges
+    single = sample_training_cameras(40, seed=3, distances=(2.0, 2.5))
+    assert [c.direction for c in cameras] == [c.direction for c in single]
+
+
 def test_view_matrix_puts_eye_at_origin_looking_down_minus_z():
     camera = Camera((0.6, 0.0, 0.8), 2.0)
     view = camera.view_matrix()
