@@ -11,9 +11,14 @@ steps, wall seconds, what shipped, the gain over bicubic per set, the share of t
 ceiling's gain on Q (``--ceiling``: JSON rows of ``benchmarks/texel_ceiling.py``), and whether
 the file is below the best filter on any set.
 
+``--loop JSON`` overrides settings of the learned method's loop (``OptimizeConfig`` fields, as
+``geoscaler.cli.main(optimize=...)`` takes them; e.g. ``'{"distances": [[1.8, 3.0]]}'``): to
+measure a setting in the job itself, as users run it.
+
 Usage:
     python benchmarks/budget.py [PATH ...] [--scale 4 8] [--budget 15 30 60]
-        [--load idle busy] [--sets 2.4 1.5 4.0] [--ceiling CEILING.json ...] [--out DIR]
+        [--load idle busy] [--sets 2.4 1.5 4.0] [--ceiling CEILING.json ...] [--loop JSON]
+        [--out DIR]
 
 PATH: mesh files or folders (default: ../shared/data). Writes ``budget.json`` and
 ``budget.md`` into ``--out`` (default: /tmp/geoscaler_budget).
@@ -42,12 +47,20 @@ from geoscaler.views import ViewCache, ViewSet
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 BUSY_LOOP = "while True: pass"
+LOOP_OVERRIDE = (
+    "import json, sys; from geoscaler.cli import main; "
+    "sys.exit(main(sys.argv[2:], optimize=json.loads(sys.argv[1])))"
+)
 
 
-def run_downsample(mesh: Path, scale: int, budget: float, busy: bool, out: Path) -> dict:
-    """One ``geoscaler downsample`` as a user runs it; its report's facts and the wall time."""
+def run_downsample(
+    mesh: Path, scale: int, budget: float, busy: bool, out: Path, loop: str | None = None
+) -> dict:
+    """One ``geoscaler downsample`` as a user runs it (``loop``: JSON overrides of the loop's
+    settings); its report's facts and the wall time."""
     output, report = out / "out.glb", out / "report.json"
-    command = [sys.executable, "-m", "geoscaler.cli", "downsample", str(mesh), "--scale",
+    cli = ["-m", "geoscaler.cli"] if loop is None else ["-c", LOOP_OVERRIDE, loop]
+    command = [sys.executable, *cli, "downsample", str(mesh), "--scale",
                str(scale), "--time-budget", str(budget), "-o", str(output), "--report",
                str(report), "--force"]  # fmt: skip
     load_before = os.getloadavg()[0]  # the 1-minute load average: what else was running
@@ -125,6 +138,7 @@ def main() -> int:
     parser.add_argument("--load", nargs="+", choices=["idle", "busy"], default=["idle", "busy"])
     parser.add_argument("--sets", type=float, nargs="+", default=[2.4])
     parser.add_argument("--ceiling", nargs="*", default=[])
+    parser.add_argument("--loop", help="JSON overrides of the learned method's loop settings")
     parser.add_argument("--out", default="/tmp/geoscaler_budget")
     args = parser.parse_args()
     out = Path(args.out)
@@ -137,7 +151,8 @@ def main() -> int:
             runs = []
             for budget in args.budget:
                 for load in args.load:
-                    run = run_downsample(entry.path, scale, budget, load == "busy", out)
+                    busy = load == "busy"
+                    run = run_downsample(entry.path, scale, budget, busy, out, args.loop)
                     runs.append(
                         {"mesh": name, "scale": scale, "budget": budget, "load": load, **run}
                     )
