@@ -64,8 +64,8 @@ DEMO_STEPS = 120
 idle 2-core machine (CPU, 2 torch threads), ``make demo`` from a fresh ``assets/``: the first
 step 21.5 s after the start (the asset built, the layout planned and baked, views cached), then
 64 steps (validations included) until the budget stopped them; 74.3 s wall clock in all,
-+4.28 dB PSNR-fg over bicubic on the validation's Q. At commit 20fdc3d, on a 2-core machine 2-3
-times slower: 58.1 s wall, 120 steps, +4.93 dB; beside a busy loop 64.9 s, 120 steps, +4.69 dB.
++4.28 dB PSNR-fg over bicubic on the validation's Q. At commit b8d171f, on a 2-core machine 2-3
+times slower: 57.3 s wall, 120 steps, +5.09 dB; beside a busy loop 68.1 s, 120 steps, +5.13 dB.
 The step limit lets the cosine schedule end where the machine is fast enough; the budget bounds
 the demo's time where it is not."""
 DEMO_UV = "repack"
