@@ -142,9 +142,11 @@ class MipLayout:
     """Where each level of a mip chain lives in one flat texel table, and which texels a
     filtered lookup reads.
 
-    The filters are expressed as *taps*: ``(K, N)`` texel indices into the flat table and
-    ``(K, N)`` weights. A lookup is then one :func:`gather`, whatever the texel values are, so
-    a view whose UVs are fixed can cache its taps and re-filter new texels cheaply.
+    The filters are expressed as *taps*: texel indices into the flat table and their weights,
+    ``(4, N)`` each for bilinear lookups (one :func:`gather`), 4 or 8 a sample for trilinear
+    ones (:meth:`trilinear_taps`, which a view folds into a :class:`TapMatrix`). A lookup is a
+    weighted sum of its taps whatever the texel values are, so a view whose UVs are fixed can
+    cache its taps and re-filter new texels cheaply.
 
     Args:
         height, width: size of level 0 in texels.
