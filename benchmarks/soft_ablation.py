@@ -93,7 +93,8 @@ def mesh_rows(entry: MeshEntry, args) -> list[dict]:
         validation = Validation(view_sets, sizes, {n: r.textures for n, r in filters.items()})
         validation.cache_all()  # before the runs: no run's seconds include it
         results = {(name, "-"): result for name, result in filters.items()}
-        masks = reachable_masks(mesh, sizes, max(TRAINING_RANGES), renderer.resolution)
+        farthest = max(high for _, high in TRAINING_RANGES)
+        masks = reachable_masks(mesh, sizes, farthest, renderer.resolution)
         reachable = [None if m is None else m.to(renderer.device) for m in masks]
         for renderer_name in args.renderers:
             for method in args.methods:
