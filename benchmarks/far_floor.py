@@ -49,7 +49,8 @@ def box_linear(linear: torch.Tensor, factor: int) -> torch.Tensor:
 
 
 def exact_first_level(codes: np.ndarray, original: torch.Tensor, scale: int) -> np.ndarray:
-    """8-bit ``codes`` whose 2 x 2 block means (linear light) are the original's at that size."""
+    """8-bit ``codes`` moved so that their 2 x 2 block means (linear light) are the original's
+    at that size, up to clamping to [0, 1] and 8-bit rounding."""
     linear = texture_to_linear(codes)
     fix = box_linear(original, 2 * scale) - box_linear(linear, 2)
     fixed = linear + fix.repeat_interleave(2, 0).repeat_interleave(2, 1)
