@@ -25,7 +25,6 @@ import json
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from geoscaler.cameras import view_set_cameras
 from geoscaler.downsampling import product_evaluation
@@ -38,21 +37,17 @@ from geoscaler.optimize import OptimizeConfig, optimize
 from geoscaler.process import configure_process
 from geoscaler.protocol import PROTOCOL_EVALUATION
 from geoscaler.render import Renderer
-from geoscaler.texture import linear_to_texture, texture_to_linear
+from geoscaler.texture import build_mip_chain, linear_to_texture, texture_to_linear
 from geoscaler.validation import Validation, validation_view_sets
 from geoscaler.views import ViewCache, ViewSet
 
 
-def box_linear(linear: torch.Tensor, factor: int) -> torch.Tensor:
-    """``(H, W, 3)`` -> ``(H / factor, W / factor, 3)`` block means."""
-    return F.avg_pool2d(linear.permute(2, 0, 1)[None], factor)[0].permute(1, 2, 0)
-
-
-def exact_first_level(codes: np.ndarray, original: torch.Tensor, scale: int) -> np.ndarray:
-    """8-bit ``codes`` moved so that their 2 x 2 block means (linear light) are the original's
-    at that size, up to clamping to [0, 1] and 8-bit rounding."""
+def exact_first_level(codes: np.ndarray, original: list[torch.Tensor], scale: int) -> np.ndarray:
+    """8-bit ``codes`` moved so that their first mip level (2 x 2 means in linear light) is the
+    level of the ``original`` chain at that size, up to clamping to [0, 1] and 8-bit rounding;
+    ``scale`` a power of two."""
     linear = texture_to_linear(codes)
-    fix = box_linear(original, 2 * scale) - box_linear(linear, 2)
+    fix = original[scale.bit_length()] - build_mip_chain(linear)[1]
     fixed = linear + fix.repeat_interleave(2, 0).repeat_interleave(2, 1)
     return linear_to_texture(fixed.clamp(0, 1))
 
@@ -84,6 +79,8 @@ def main() -> int:
     parser.add_argument("--loop", default="{}", help="JSON overrides of the loop's settings")
     parser.add_argument("--sets", type=float, nargs="+", default=[2.4, 1.5, 4.0])
     args = parser.parse_args()
+    if args.scale < 2 or args.scale & (args.scale - 1):
+        parser.error(f"--scale {args.scale}: a power of two, so that mip levels are the sizes")
     configure_process()
     mesh = load_mesh(args.mesh)
     renderer = Renderer(mesh, "cpu", product_evaluation(PROTOCOL_EVALUATION))
@@ -93,14 +90,14 @@ def main() -> int:
     if len(textured) != 1:
         parser.error(f"{args.mesh}: one textured material expected, found {len(textured)}")
     original = originals[textured[0]]
-    original_linear = texture_to_linear(original[..., :3])
+    levels = build_mip_chain(texture_to_linear(original[..., :3]))  # what the renderer shows
     filters = {"bicubic": bicubic(original, args.scale), "lanczos": lanczos(original, args.scale)}
     direct = direct_candidate(mesh, renderer, args.scale, args.steps, json.loads(args.loop))
     textures = {
-        "box (linear)": linear_to_texture(box_linear(original_linear, args.scale)),
+        "box (linear)": linear_to_texture(levels[args.scale.bit_length() - 1]),
         **filters,
         "direct": direct,
-        "direct, first level exact": exact_first_level(direct, original_linear, args.scale),
+        "direct, first level exact": exact_first_level(direct, levels, args.scale),
     }
     for name, codes in filters.items():
         for weight in (0.75, 0.5):
