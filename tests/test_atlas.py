@@ -180,6 +180,17 @@ def test_charts_larger_than_the_atlas_are_refused_not_shrunk():
         pack(charts, np.ones(1), 32, 2000, rotate=False)
 
 
+def test_a_chart_with_a_sliver_face_packs_as_itself_not_as_its_box():
+    # a scan's finest faces are under float32's epsilon in UV area (here 5e-8), which xatlas
+    # ignores as degenerate: the corner only they use would be left out, the chart boxed
+    uvs = np.array([[0, 0], [0.1, 0], [0.1, 0.1], [0, 0.1], [0.05, -1e-6]], np.float64)
+    faces = np.array([[0, 1, 2], [0, 2, 3], [0, 4, 1]])
+    packed = pack(Charts(faces, uvs, np.zeros(5, np.int64), 1), np.ones(1), 64, 2, rotate=False)
+    assert not packed.boxed[0]
+    moved = uvs @ packed.linear[0].T + packed.offset[0]
+    assert moved.min() >= 0 and moved.max() <= 1
+
+
 def test_normal_mapped_charts_never_turn_or_mirror():
     mesh = cube_mesh()
     normal = np.full((128, 128, 3), (128, 128, 255), np.uint8)
