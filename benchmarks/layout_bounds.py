@@ -1,0 +1,182 @@
+"""How far re-allocating the atlas can go (issue 17): per mesh and scale, the texel density
+gain ``k`` the job's new layout reaches and two bounds on any layout that, like it, moves each
+chart whole by a similarity at the planned relative scales.
+
+- ``k area``: every texel of the square used, no padding (the charts' UV area bounds it);
+- ``k side``: the chart whose longer side is largest at its planned scale spans the square
+  less the padding (no packing of whole charts beats it, however clever);
+- ``bound``: the smaller of the two, and which one binds.
+
+Each ``k`` is the footprint-weighted geometric mean over the moved charts of new texels per old
+texel at the same texture size (as the report's ``k``). ``dB`` columns turn them into the
+issue's prediction, bicubic's loss of about 5 dB per halving of the texel density on the
+development set: ``5 log2 k``. Planning only (the job's own :func:`plan_layout` on its first
+training views): no training, a few seconds a mesh.
+
+Usage:
+    python benchmarks/layout_bounds.py [PATH ...] [--scale 4 8] [--device cpu] [--json OUT]
+
+PATH: mesh files or folders (default: ../shared/data; a missing folder skips cleanly).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from geoscaler.atlas import Atlas, planned_scales, uv_areas
+from geoscaler.bench import find_meshes
+from geoscaler.io import load_mesh
+from geoscaler.mesh import TexturedMesh
+from geoscaler.methods import MethodOptions, RunContext
+from geoscaler.methods.direct import DEFAULT_CONFIG
+from geoscaler.methods.learned import loop_config
+from geoscaler.methods.repacked import plan_layout
+from geoscaler.render import Renderer
+from geoscaler.sizes import SizeRule
+from geoscaler.uvmaps import chart_labels
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+DB_PER_HALVING = 5.0
+
+
+def chart_extents(mesh: TexturedMesh, charts: np.ndarray, count: int) -> np.ndarray:
+    """``(C,)`` the longer side of each chart's UV bounding box (UV units)."""
+    corners = mesh.uvs[mesh.faces].astype(np.float64)  # (F, 3, 2)
+    sides = np.zeros((count, 2))
+    for axis in range(2):
+        high, low = np.full(count, -np.inf), np.full(count, np.inf)
+        np.maximum.at(high, charts, corners[..., axis].max(axis=1))
+        np.minimum.at(low, charts, corners[..., axis].min(axis=1))
+        sides[:, axis] = np.where(np.isfinite(high), high - low, 0.0)
+    return sides.max(axis=1)
+
+
+def group_bounds(mesh: TexturedMesh, atlas: Atlas, group: int) -> dict:
+    """One packed group's ``k`` and bounds, with the footprint weight they average over."""
+    charts = chart_labels(mesh)
+    count = len(atlas.planned)
+    area = np.bincount(charts, np.abs(uv_areas(mesh.uvs, mesh.faces)), minlength=count)
+    faces = np.isin(mesh.face_material, atlas.groups[group]) & (atlas.chart_of_face >= 0)
+    ids = np.unique(charts[faces])
+    weights = atlas.footprint[ids]
+    relative = planned_scales(weights, area[ids])  # total UV area as the original's
+    padding = atlas.paddings[group]
+    size = atlas.sizes[atlas.groups[group][0]][0]
+    side = chart_extents(mesh, charts, count)[ids] * relative
+    factors = {
+        "area": 1.0 / math.sqrt(float((relative**2 * area[ids]).sum())),
+        "side": (1.0 - 2.0 * padding / size) / float(side.max()),
+    }
+
+    def mean_gain(scales: np.ndarray) -> float:
+        return float(np.exp((weights * np.log(scales)).sum() / weights.sum()))
+
+    return {
+        "weight": float(weights.sum()),
+        "size": size,
+        "padding": padding,
+        "charts": len(ids),
+        "coverage": float(area[ids].sum()),
+        "k": mean_gain(atlas.scales[ids]),
+        "k_area": mean_gain(relative * factors["area"]),
+        "k_side": mean_gain(relative * factors["side"]),
+    }
+
+
+def mesh_rows(entry, scales: list[int], device: str) -> list[dict]:
+    """One row per scale: the job's layout and its bounds (groups averaged by footprint)."""
+    mesh = load_mesh(entry.path)
+    renderer = Renderer(mesh, device)
+    config = loop_config(DEFAULT_CONFIG, MethodOptions(device=device), RunContext())
+    memo: dict = {}
+    rows = []
+    for scale in scales:
+        atlas = plan_layout(mesh, SizeRule(scale=scale), renderer, config, memo)
+        groups = [group_bounds(mesh, atlas, g) for g in range(len(atlas.groups))]
+        if not groups:
+            rows.append({"mesh": entry.name, "scale": scale, "kept": atlas.kept})
+            continue
+        weight = sum(g["weight"] for g in groups)
+
+        def average(key: str, groups: list[dict] = groups, weight: float = weight) -> float:
+            return math.exp(sum(g["weight"] * math.log(g[key]) for g in groups) / weight)
+
+        row = {
+            "mesh": entry.name,
+            "scale": scale,
+            "size": max(g["size"] for g in groups),
+            "charts": sum(g["charts"] for g in groups),
+            "coverage": sum(g["coverage"] for g in groups) / len(groups),
+            "padding": min(g["padding"] for g in groups),
+            "kept": atlas.kept,
+            **{key: average(key) for key in ("k", "k_area", "k_side")},
+        }
+        row["bound"] = min(row["k_area"], row["k_side"])
+        row["binds"] = "area" if row["k_area"] <= row["k_side"] else "side"
+        rows.append(row)
+        print(
+            f"# {entry.name} x{scale}: k {row['k']:.2f}, bound {row['bound']:.2f}", file=sys.stderr
+        )
+    return rows
+
+
+def decibels(k: float) -> float:
+    return DB_PER_HALVING * math.log2(k)
+
+
+def table(rows: list[dict]) -> str:
+    lines = [
+        "| mesh | x | size | charts | UV coverage | padding | k | k area | k side | bound "
+        "(binds) | 5 log2 k: now / bound (dB) |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- | ---: |",
+    ]
+    for r in rows:
+        if "k" not in r:
+            lines.append(f"| {r['mesh']} | {r['scale']} | layout kept: {r['kept']} |")
+            continue
+        lines.append(
+            f"| {r['mesh']} | {r['scale']} | {r['size']} | {r['charts']} | "
+            f"{r['coverage']:.2f} | {r['padding']} | {r['k']:.2f} | {r['k_area']:.2f} | "
+            f"{r['k_side']:.2f} | {r['bound']:.2f} ({r['binds']}) | "
+            f"{decibels(r['k']):+.2f} / {decibels(r['bound']):+.2f} |"
+        )
+    for scale in sorted({r["scale"] for r in rows}):
+        part = [r for r in rows if r["scale"] == scale and "k" in r]
+        if part:
+            now = statistics.fmean(decibels(r["k"]) for r in part)
+            bound = statistics.fmean(decibels(r["bound"]) for r in part)
+            lines.append(
+                f"| **mean of {len(part)}** | {scale} | | | | | | | | | {now:+.2f} / {bound:+.2f} |"
+            )
+    return "\n".join(lines)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("paths", nargs="*", type=Path)
+    parser.add_argument("--scale", type=int, nargs="+", default=[4, 8])
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    paths = args.paths or [DATA]
+    if not args.paths and not DATA.is_dir():
+        print(f"no development data at {DATA}: nothing to measure", file=sys.stderr)
+        return 0
+    rows = [
+        row for entry in find_meshes(paths) for row in mesh_rows(entry, args.scale, args.device)
+    ]
+    print(table(rows))
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
