@@ -191,6 +191,23 @@ def test_a_chart_with_a_sliver_face_packs_as_itself_not_as_its_box():
     assert moved.min() >= 0 and moved.max() <= 1
 
 
+def test_densities_above_the_bisections_answer_are_tried(monkeypatch):
+    # xatlas's placement is a heuristic: here charts fit below half the all-texels density and
+    # again between 55 and 60 % of it; the bisection alone would stop just under half
+    uvs = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float64)
+    charts = Charts(np.array([[0, 1, 2], [0, 2, 3]]), uvs, np.zeros(4, np.int64), 1)
+    every_texel = 32.0  # size / sqrt(area): the search's upper end
+
+    def place(charts, scales, size, tpu, padding, rotate, boxes):
+        fits = tpu < 0.5 * every_texel or 0.55 * every_texel <= tpu < 0.6 * every_texel
+        found = packing.Packed(np.eye(2)[None] * tpu / size, np.zeros((1, 2)), tpu, boxes)
+        return (found if fits else None), boxes
+
+    monkeypatch.setattr(packing, "_place", place)
+    packed = pack(charts, np.ones(1), 32, 1, rotate=False)
+    assert 0.55 * every_texel <= packed.texels_per_unit < 0.6 * every_texel
+
+
 def test_normal_mapped_charts_never_turn_or_mirror():
     mesh = cube_mesh()
     normal = np.full((128, 128, 3), (128, 128, 255), np.uint8)
