@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 from repack import register_methods
 
+from geoscaler.atlas import chart_boxes
 from geoscaler.bench import find_meshes
 from geoscaler.io import load_mesh
 from geoscaler.job import compare_mesh
@@ -38,15 +39,11 @@ def cut_charts(mesh: TexturedMesh, side: float) -> tuple[TexturedMesh, int]:
     """``(the cut mesh, charts cut)``: charts longer than ``side`` (UV units) cut into grid
     pieces; faces keep their order, corners their positions and UVs."""
     charts = chart_labels(mesh)
-    corners = mesh.uvs[mesh.faces].astype(np.float64)  # (F, 3, 2)
-    count = int(charts.max()) + 1
-    low, high = np.full((count, 2), np.inf), np.full((count, 2), -np.inf)
-    for axis in range(2):
-        np.minimum.at(low[:, axis], charts, corners[..., axis].min(axis=1))
-        np.maximum.at(high[:, axis], charts, corners[..., axis].max(axis=1))
-    cells = np.ceil(np.maximum(high - low, 1e-9) / side).astype(np.int64)  # (C, 2)
-    cell_size = (high - low) / cells
-    relative = (corners.mean(axis=1) - low[charts]) / np.maximum(cell_size[charts], 1e-12)
+    low, extent = chart_boxes(mesh, charts, int(charts.max()) + 1)
+    cells = np.ceil(np.maximum(extent, 1e-9) / side).astype(np.int64)  # (C, 2)
+    cell_size = extent / cells
+    centroids = mesh.uvs[mesh.faces].astype(np.float64).mean(axis=1)  # (F, 2)
+    relative = (centroids - low[charts]) / np.maximum(cell_size[charts], 1e-12)
     cell = np.clip(np.floor(relative).astype(np.int64), 0, cells[charts] - 1)
     piece = (charts * cells[:, 0].max() + cell[:, 0]) * cells[:, 1].max() + cell[:, 1]
     pairs = np.stack([mesh.faces.reshape(-1), np.repeat(piece, 3)], axis=1)

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geoscaler.atlas import Atlas, planned_scales, uv_areas
+from geoscaler.atlas import Atlas, chart_boxes, planned_scales, uv_areas, weighted_gain
 from geoscaler.bench import find_meshes
 from geoscaler.io import load_mesh
 from geoscaler.mesh import TexturedMesh
@@ -46,21 +46,9 @@ DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 DB_PER_HALVING = 5.0
 
 
-def chart_extents(mesh: TexturedMesh, charts: np.ndarray, count: int) -> np.ndarray:
-    """``(C,)`` the longer side of each chart's UV bounding box (UV units)."""
-    corners = mesh.uvs[mesh.faces].astype(np.float64)  # (F, 3, 2)
-    sides = np.zeros((count, 2))
-    for axis in range(2):
-        high, low = np.full(count, -np.inf), np.full(count, np.inf)
-        np.maximum.at(high, charts, corners[..., axis].max(axis=1))
-        np.minimum.at(low, charts, corners[..., axis].min(axis=1))
-        sides[:, axis] = np.where(np.isfinite(high), high - low, 0.0)
-    return sides.max(axis=1)
-
-
-def group_bounds(mesh: TexturedMesh, atlas: Atlas, group: int) -> dict:
-    """One packed group's ``k`` and bounds, with the footprint weight they average over."""
-    charts = chart_labels(mesh)
+def group_bounds(mesh: TexturedMesh, atlas: Atlas, charts: np.ndarray, group: int) -> dict:
+    """One packed group's ``k`` and bounds, with the footprint weight they average over;
+    ``charts`` is ``(F,)`` (:func:`chart_labels`)."""
     count = len(atlas.planned)
     area = np.bincount(charts, np.abs(uv_areas(mesh.uvs, mesh.faces)), minlength=count)
     faces = np.isin(mesh.face_material, atlas.groups[group]) & (atlas.chart_of_face >= 0)
@@ -69,14 +57,11 @@ def group_bounds(mesh: TexturedMesh, atlas: Atlas, group: int) -> dict:
     relative = planned_scales(weights, area[ids])  # total UV area as the original's
     padding = atlas.paddings[group]
     size = atlas.sizes[atlas.groups[group][0]][0]
-    side = chart_extents(mesh, charts, count)[ids] * relative
+    side = chart_boxes(mesh, charts, count)[1][ids].max(axis=1) * relative
     factors = {
         "area": 1.0 / math.sqrt(float((relative**2 * area[ids]).sum())),
         "side": (1.0 - 2.0 * padding / size) / float(side.max()),
     }
-
-    def mean_gain(scales: np.ndarray) -> float:
-        return float(np.exp((weights * np.log(scales)).sum() / weights.sum()))
 
     return {
         "weight": float(weights.sum()),
@@ -84,9 +69,9 @@ def group_bounds(mesh: TexturedMesh, atlas: Atlas, group: int) -> dict:
         "padding": padding,
         "charts": len(ids),
         "coverage": float(area[ids].sum()),
-        "k": mean_gain(atlas.scales[ids]),
-        "k_area": mean_gain(relative * factors["area"]),
-        "k_side": mean_gain(relative * factors["side"]),
+        "k": weighted_gain(atlas.scales[ids], weights),
+        "k_area": weighted_gain(relative * factors["area"], weights),
+        "k_side": weighted_gain(relative * factors["side"], weights),
     }
 
 
@@ -96,10 +81,11 @@ def mesh_rows(entry, scales: list[int], device: str) -> list[dict]:
     renderer = Renderer(mesh, device)
     config = loop_config(DEFAULT_CONFIG, MethodOptions(device=device), RunContext())
     memo: dict = {}
+    charts = chart_labels(mesh)
     rows = []
     for scale in scales:
         atlas = plan_layout(mesh, SizeRule(scale=scale), renderer, config, memo)
-        groups = [group_bounds(mesh, atlas, g) for g in range(len(atlas.groups))]
+        groups = [group_bounds(mesh, atlas, charts, g) for g in range(len(atlas.groups))]
         if not groups:
             rows.append({"mesh": entry.name, "scale": scale, "kept": atlas.kept})
             continue

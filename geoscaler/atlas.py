@@ -339,6 +339,26 @@ def _lay_out(
         raise AtlasError("the new UV layout broke a guard: " + "; ".join(problems))
 
 
+def chart_boxes(
+    mesh: TexturedMesh, charts: np.ndarray, count: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """``((C, 2) low corner, (C, 2) extent)`` float64 of each chart's UV bounding box in UV
+    units; ``charts`` is ``(F,)`` (:func:`~geoscaler.uvmaps.chart_labels`), ``count`` >= C."""
+    corners = mesh.uvs[mesh.faces].astype(np.float64)  # (F, 3, 2)
+    low, high = np.full((count, 2), np.inf), np.full((count, 2), -np.inf)
+    for axis in range(2):
+        np.minimum.at(low[:, axis], charts, corners[..., axis].min(axis=1))
+        np.maximum.at(high[:, axis], charts, corners[..., axis].max(axis=1))
+    return low, high - low
+
+
+def weighted_gain(scales: np.ndarray, weights: np.ndarray) -> float:
+    """Geometric mean of ``(C,)`` density gains ``scales`` weighted by ``(C,)`` ``weights``
+    (1.0 where the weights sum to nothing)."""
+    total = weights.sum()
+    return float(np.exp((weights * np.log(scales)).sum() / total)) if total > 0 else 1.0
+
+
 def layout_facts(
     mesh: TexturedMesh, atlas: Atlas, charts: np.ndarray, chart_area: np.ndarray
 ) -> dict:
@@ -349,24 +369,12 @@ def layout_facts(
     weighted by UV area instead."""
     moved = np.unique(atlas.chart_of_face[atlas.chart_of_face >= 0])
     scales = atlas.scales[moved]
-    weights = atlas.footprint[moved]
-
-    def mean_gain(w: np.ndarray) -> float:
-        return float(np.exp((w * np.log(scales)).sum() / w.sum())) if w.sum() > 0 else 1.0
-
-    extent = np.zeros((len(chart_area), 2))
-    corners = mesh.uvs[mesh.faces]  # (F, 3, 2)
-    for axis in range(2):
-        high = np.full(len(chart_area), -np.inf)
-        low = np.full(len(chart_area), np.inf)
-        np.maximum.at(high, charts, corners[..., axis].max(axis=1))
-        np.minimum.at(low, charts, corners[..., axis].min(axis=1))
-        extent[:, axis] = high - low
+    _, extent = chart_boxes(mesh, charts, len(chart_area))
     signed = np.bincount(charts, uv_areas(mesh.uvs, mesh.faces), minlength=len(chart_area))
     return {
         "charts": int(len(moved)),
-        "k": round(mean_gain(weights), 4),
-        "k_area": round(mean_gain(chart_area[moved]), 4),
+        "k": round(weighted_gain(scales, atlas.footprint[moved]), 4),
+        "k_area": round(weighted_gain(scales, chart_area[moved]), 4),
         "padding_texels": atlas.padding,
         "mirrored_by_packer": int(atlas.mirrored[moved].sum()),
         "tiling_charts": int((extent[moved] > 1.0).any(axis=1).sum()),
