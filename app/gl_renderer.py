@@ -233,7 +233,8 @@ class Surface:
     Args:
         renderer: the mesh's renderer (its context and geometry).
         textures: per material ``(H, W, C)`` uint8 sRGB texture, or None (untextured).
-        uvs: ``(V, 2)`` UVs for these textures, or None for the mesh's own.
+        uvs: UVs for these textures, ``(V, 2)`` per vertex or ``(F, 3, 2)`` per face corner,
+            or None for the mesh's own.
         chains: the textures' :func:`srgb_mip_chain`, when already built (e.g. by a worker).
     """
 
@@ -253,8 +254,8 @@ class Surface:
             chains = [None if t is None else srgb_mip_chain(t) for t in textures]
         self.textures = [None if c is None else upload_texture(ctx, c) for c in chains]
         self.levels = [0 if c is None else len(c) for c in chains]
-        uvs = renderer.mesh.uvs if uvs is None else uvs
-        self.uv_buffer = ctx.buffer(np.ascontiguousarray(uvs, dtype=np.float32).tobytes())
+        corners = renderer.mesh.corner_uvs(uvs)[renderer.face_order].reshape(-1, 2)
+        self.uv_buffer = ctx.buffer(np.ascontiguousarray(corners, dtype=np.float32).tobytes())
         self.vao = renderer.mesh_vertex_array([self])
 
     def release(self) -> None:
@@ -291,14 +292,14 @@ class GLRenderer:
         }
         self.resolve_program = program(ctx, "fullscreen.vert", "resolve.frag")
         self.empty_vao = ctx.vertex_array(self.resolve_program, [])
-        order = np.argsort(mesh.face_material, kind="stable")
-        faces = np.asarray(mesh.faces, dtype=np.int32)[order]
+        self.face_order = np.argsort(mesh.face_material, kind="stable")
         counts = np.bincount(mesh.face_material, minlength=len(mesh.materials))
         starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
         self.ranges = [(int(s) * 3, int(c) * 3) for s, c in zip(starts, counts, strict=True)]
-        positions = np.ascontiguousarray(mesh.normalized_positions(), dtype=np.float32)
-        self.positions = ctx.buffer(positions.tobytes())
-        self.indices = ctx.buffer(np.ascontiguousarray(faces).tobytes())
+        # One vertex a face corner, faces by material: a layout may give a vertex's corners
+        # different UVs (cut charts, :meth:`TexturedMesh.corner_uvs`).
+        corners = mesh.normalized_positions()[mesh.faces[self.face_order]].reshape(-1, 3)
+        self.positions = ctx.buffer(np.ascontiguousarray(corners, dtype=np.float32).tobytes())
         self.factors = [tuple(float(x) for x in m.base_color_factor[:3]) for m in mesh.materials]
 
     def reference_surface(self) -> Surface:
@@ -331,7 +332,6 @@ class GLRenderer:
             self.mesh_programs[len(surfaces)],
             [(self.positions, "3f", "position")]
             + [(s.uv_buffer, "2f", name) for s, name in zip(surfaces, names, strict=False)],
-            self.indices,
         )
 
     def render(

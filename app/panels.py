@@ -390,7 +390,7 @@ class UVPanel:
         self.pictures[0].draw(session.original.textures[m], outline)
         layers = list(outline)
         if session.candidate_uvs is not None:  # the charts where the candidate's UVs put them
-            moved = replace(session.mesh, uvs=np.asarray(session.candidate_uvs, np.float32))
+            moved = session.mesh.with_uvs(session.candidate_uvs)
             layers = [(chart_outlines(moved, m), OUTLINE_COLOUR)]
         if self.warp_texture is not None:
             self.warp_texture.release()

@@ -1,6 +1,7 @@
 """How far re-allocating the atlas can go (issue 17): per mesh and scale, the texel density
 gain ``k`` the job's new layout reaches and two bounds on any layout that, like it, moves each
-chart whole by a similarity at the planned relative scales.
+of its charts whole by a similarity at the planned relative scales (where the layout cut
+charts, its pieces are its charts; ``k whole`` is what the uncut charts reached).
 
 - ``k area``: every texel of the square used, no padding (the charts' UV area bounds it);
 - ``k side``: the chart whose longer side is largest at its planned scale spans the square
@@ -40,24 +41,23 @@ from geoscaler.methods.learned import loop_config
 from geoscaler.methods.repacked import plan_layout
 from geoscaler.render import Renderer
 from geoscaler.sizes import SizeRule
-from geoscaler.uvmaps import chart_labels
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 DB_PER_HALVING = 5.0
 
 
-def group_bounds(mesh: TexturedMesh, atlas: Atlas, charts: np.ndarray, group: int) -> dict:
-    """One packed group's ``k`` and bounds, with the footprint weight they average over;
-    ``charts`` is ``(F,)`` (:func:`chart_labels`)."""
+def group_bounds(mesh: TexturedMesh, atlas: Atlas, group: int) -> dict:
+    """One packed group's ``k`` and bounds, with the footprint weight they average over."""
     count = len(atlas.planned)
-    area = np.bincount(charts, np.abs(uv_areas(mesh.uvs, mesh.faces)), minlength=count)
+    charts = np.where(atlas.chart_of_face >= 0, atlas.chart_of_face, count)  # kept: one more
+    area = np.bincount(charts, np.abs(uv_areas(mesh.uvs, mesh.faces)), minlength=count + 1)
     faces = np.isin(mesh.face_material, atlas.groups[group]) & (atlas.chart_of_face >= 0)
     ids = np.unique(charts[faces])
     weights = atlas.footprint[ids]
     relative = planned_scales(weights, area[ids])  # total UV area as the original's
     padding = atlas.paddings[group]
     size = atlas.sizes[atlas.groups[group][0]][0]
-    side = chart_boxes(mesh, charts, count)[1][ids].max(axis=1) * relative
+    side = chart_boxes(mesh, charts, count + 1)[1][ids].max(axis=1) * relative
     factors = {
         "area": 1.0 / math.sqrt(float((relative**2 * area[ids]).sum())),
         "side": (1.0 - 2.0 * padding / size) / float(side.max()),
@@ -81,11 +81,10 @@ def mesh_rows(entry, scales: list[int], device: str) -> list[dict]:
     renderer = Renderer(mesh, device)
     config = loop_config(DEFAULT_CONFIG, MethodOptions(device=device), RunContext())
     memo: dict = {}
-    charts = chart_labels(mesh)
     rows = []
     for scale in scales:
         atlas = plan_layout(mesh, SizeRule(scale=scale), renderer, config, memo)
-        groups = [group_bounds(mesh, atlas, charts, g) for g in range(len(atlas.groups))]
+        groups = [group_bounds(mesh, atlas, g) for g in range(len(atlas.groups))]
         if not groups:
             rows.append({"mesh": entry.name, "scale": scale, "kept": atlas.kept})
             continue
@@ -103,6 +102,8 @@ def mesh_rows(entry, scales: list[int], device: str) -> list[dict]:
             "padding": min(g["padding"] for g in groups),
             "kept": atlas.kept,
             **{key: average(key) for key in ("k", "k_area", "k_side")},
+            "k_whole": atlas.facts["k_whole"],
+            "vertices_added": atlas.facts["vertices_added"],
         }
         row["bound"] = min(row["k_area"], row["k_side"])
         row["binds"] = "area" if row["k_area"] <= row["k_side"] else "side"
@@ -119,9 +120,9 @@ def decibels(k: float) -> float:
 
 def table(rows: list[dict]) -> str:
     lines = [
-        "| mesh | x | size | charts | UV coverage | padding | k | k area | k side | bound "
-        "(binds) | 5 log2 k: now / bound (dB) |",
-        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- | ---: |",
+        "| mesh | x | size | charts | UV coverage | padding | k whole | k | dV | k area | "
+        "k side | bound (binds) | 5 log2 k: now / bound (dB) |",
+        "| --- |" + " ---: |" * 10 + " --- | ---: |",
     ]
     for r in rows:
         if "k" not in r:
@@ -129,7 +130,8 @@ def table(rows: list[dict]) -> str:
             continue
         lines.append(
             f"| {r['mesh']} | {r['scale']} | {r['size']} | {r['charts']} | "
-            f"{r['coverage']:.2f} | {r['padding']} | {r['k']:.2f} | {r['k_area']:.2f} | "
+            f"{r['coverage']:.2f} | {r['padding']} | {r['k_whole']:.2f} | {r['k']:.2f} | "
+            f"{r['vertices_added']:+d} | {r['k_area']:.2f} | "
             f"{r['k_side']:.2f} | {r['bound']:.2f} ({r['binds']}) | "
             f"{decibels(r['k']):+.2f} / {decibels(r['bound']):+.2f} |"
         )
@@ -139,7 +141,8 @@ def table(rows: list[dict]) -> str:
             now = statistics.fmean(decibels(r["k"]) for r in part)
             bound = statistics.fmean(decibels(r["bound"]) for r in part)
             lines.append(
-                f"| **mean of {len(part)}** | {scale} | | | | | | | | | {now:+.2f} / {bound:+.2f} |"
+                f"| **mean of {len(part)}** | {scale} | | | | | | | | | | | "
+                f"{now:+.2f} / {bound:+.2f} |"
             )
     return "\n".join(lines)
 

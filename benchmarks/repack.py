@@ -97,7 +97,9 @@ def mesh_rows(entry, scales, distances, methods, budget: float, device: str) -> 
                 "k": layout.get("k", 1.0),
                 "charts": layout.get("charts", 0),
                 "kept": layout.get("kept", {}),
-                "vertex_change": int(len(relaid[0]) - len(mesh.uvs)) if relaid else 0,
+                "k_whole": layout.get("k_whole", layout.get("k", 1.0)),
+                "cut": layout.get("cut", False),
+                "vertex_change": len(mesh.with_uvs(relaid[0]).uvs) - len(mesh.uvs) if relaid else 0,
             }
             if "auto" in outputs:
                 row["auto_layout"] = outputs["auto"].details.get("layout_used", "keep")
@@ -134,7 +136,8 @@ def table(rows: list[dict]) -> str:
         lines.append(
             f"| {r['mesh']} | {r['scale']} | {r['distance']:g} | {r['bicubic']:.2f} | "
             f"{_gain(r, 'direct')} | {_gain(r, 'bake')} | {_gain(r, 'repack')} | "
-            f"{_gain(r, 'auto')} | {r['k']:.2f} | {r['vertex_change']:+d} | {seconds} |"
+            f"{_gain(r, 'auto')} | {r['k']:.2f}{' (cut)' if r.get('cut') else ''} | "
+            f"{r['vertex_change']:+d} | {seconds} |"
         )
     for scale in sorted({r["scale"] for r in rows}):
         for distance in sorted({r["distance"] for r in rows}):

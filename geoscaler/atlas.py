@@ -5,12 +5,16 @@ With its own UVs a scan's texture spends most of its texels on nothing (UV cover
 charts of the mesh's UV layout (:func:`geoscaler.uvmaps.chart_labels`), scales each by the
 screen footprint the training cameras give it per unit of its UV area (the texels a view asks
 of it), and packs the scaled charts into one ``R x R`` atlas with ``xatlas``, as large as one
-atlas still holds them all, with padding enough for the mip levels the far views read.
+atlas still holds them all, with padding enough for the mip levels the far views read. A chart
+longer than half the atlas bounds how dense any packing of whole charts can be: such charts
+are cut along face edges into pieces, packed as charts of their own, where that measures
+denser (:data:`CUT_GAIN`).
 
 Every chart is moved by a similarity only: a uniform scale and a translation, plus a rotation
 by a multiple of 90 degrees (or a transpose, a mirror) where the material has no normal map.
-So each vertex, which lies on exactly one chart, keeps one UV: the mesh keeps its vertices,
-faces and 3D positions, and tangent frames keep their directions where charts do not turn.
+So each vertex keeps one UV unless a cut runs through it (its corners on each side then get
+their piece's UV: the layout gives UVs per face corner): faces and 3D positions are kept, and
+tangent frames keep their directions where charts do not turn.
 
 Materials showing one base-colour image are packed together; a material keeps its layout,
 with the reason, where the new layout cannot be right for it (:func:`layout_groups`).
@@ -30,9 +34,22 @@ import torch
 
 from geoscaler.cameras import sample_extent
 from geoscaler.mesh import TexturedMesh
-from geoscaler.packing import SCALE_TOLERANCE, Charts, PackingError, pack, signed_areas
+from geoscaler.packing import (
+    SCALE_TOLERANCE,
+    Charts,
+    PackingError,
+    corner_areas,
+    pack,
+    signed_areas,
+)
 from geoscaler.protocol import FAR_DISTANCE
-from geoscaler.uvmaps import GRAZING_STRETCH, chart_labels, face_max_levels, uv_corner_ids
+from geoscaler.uvmaps import (
+    GRAZING_STRETCH,
+    chart_labels,
+    cut_charts,
+    face_max_levels,
+    uv_corner_ids,
+)
 
 HIDDEN_SHARE = 0.25
 """Smallest planned scale of a chart, relative to the median chart's: charts no training view
@@ -46,6 +63,16 @@ MIN_PADDING, MAX_PADDING = 4, 16
 banana at 4x (10 views per set, the bake alone) 2 texels gave 49.29 / 50.70 dB PSNR-fg at
 2.4 / 4.0, 4 texels 49.51 / 52.60 (bicubic 48.30 / 53.48): far views read coarse levels
 across charts; bob lost 0.07 dB at 2.4."""
+CUT_SIDE = 0.5
+"""Longest side, as a share of the atlas's side, of a chart left whole: a longer one bounds
+the density of any whole-chart packing (``benchmarks/layout_bounds.py``: one chart spans the
+square on the lego, the mug and the peach at 4x)."""
+SEPARATION = 1e-3
+"""UV units between the shifts of a cut chart's pieces as xatlas sees them
+(:func:`group_charts`)."""
+CUT_GAIN = 1.1
+"""Least gain in ``k`` for which a layout with cut charts is taken over the whole charts'
+(5 log2 1.1 = 0.7 dB by bicubic's 5 dB per halving): cuts add seams and vertices."""
 
 
 class AtlasError(PackingError):
@@ -57,8 +84,10 @@ class Atlas:
     """A mesh's new UV layout.
 
     Attributes:
-        uvs: ``(V, 2)`` float32 new UVs (a kept material's vertices keep their own).
-        chart_of_face: ``(F,)`` int64 chart of every face, -1 where the layout is kept.
+        uvs: ``(F, 3, 2)`` float32 new UV of every face corner (a kept material's faces keep
+            their own); :meth:`TexturedMesh.with_uvs` makes the mesh in this layout.
+        chart_of_face: ``(F,)`` int64 chart of every face (a cut chart's pieces are charts of
+            their own), -1 where the layout is kept.
         planned: ``(C,)`` float64 planned scale of each chart: new UV units per old one.
         linear: ``(C, 2, 2)`` float64 the map of each chart, ``new = linear @ old + offset``.
         offset: ``(C, 2)`` float64.
@@ -237,20 +266,31 @@ def padding_for(mesh: TexturedMesh, faces: np.ndarray, size: tuple[int, int], sa
 
 def group_charts(
     mesh: TexturedMesh, materials: Sequence[int], charts: np.ndarray
-) -> tuple[np.ndarray, Charts, np.ndarray]:
+) -> tuple[np.ndarray, Charts, np.ndarray, np.ndarray]:
     """The faces of ``materials`` as :class:`~geoscaler.packing.Charts`: ``((G,) face indices,
-    charts, (C',) global chart id of each local chart)``; corners are
-    :func:`~geoscaler.uvmaps.uv_corner_ids` (a vertex is on exactly one chart)."""
+    charts, (C',) global chart id of each local chart, (C', 2) shift)``; a corner is a
+    :func:`~geoscaler.uvmaps.uv_corner_ids` on one chart (a cut chart's pieces are charts).
+
+    xatlas packs charts whose corners have equal UVs as one: the pieces of a cut chart, which
+    meet along the cut, are each moved by a shift of their own (:data:`SEPARATION` times their
+    local index along u), which the charts' UVs include."""
     faces = np.flatnonzero(np.isin(mesh.face_material, materials))
     ids = uv_corner_ids(mesh)[mesh.faces[faces]]  # (G, 3)
-    used, corner_faces = np.unique(ids, return_inverse=True)
+    keys = np.stack([ids, np.broadcast_to(charts[faces, None], ids.shape)], axis=2)
+    used, corner_faces = np.unique(keys.reshape(-1, 2), axis=0, return_inverse=True)
     corner_faces = corner_faces.reshape(-1, 3)
     corner_uvs = np.zeros((len(used), 2))
     corner_uvs[corner_faces.reshape(-1)] = mesh.uvs[mesh.faces[faces]].reshape(-1, 2)
     global_charts, local = np.unique(charts[faces], return_inverse=True)
     corner_chart = np.zeros(len(used), np.int64)
     corner_chart[corner_faces] = local.reshape(-1, 1)
-    return faces, Charts(corner_faces, corner_uvs, corner_chart, len(global_charts)), global_charts
+    on_cut = np.bincount(used[:, 0])[used[:, 0]] > 1  # a corner some other chart shares
+    shift = np.zeros((len(global_charts), 2))
+    cut = np.unique(corner_chart[on_cut])
+    shift[cut, 0] = (cut + 1) * SEPARATION
+    corner_uvs += shift[corner_chart]
+    group = Charts(corner_faces, corner_uvs, corner_chart, len(global_charts))
+    return faces, group, global_charts, shift
 
 
 def repack(
@@ -262,6 +302,11 @@ def repack(
 ) -> Atlas:
     """The new layout of ``mesh`` for textures of ``sizes`` (per material), charts scaled by
     what some views (the training views, never the validation's) show of them.
+
+    The charts are packed whole first (:func:`plan_charts`); where one then spans more than
+    :data:`CUT_SIDE` of its atlas, those charts are cut (:func:`geoscaler.uvmaps.cut_charts`)
+    into pieces at most that long at the first packing's scales and packed again, and the
+    cut layout is taken where its ``k`` is at least :data:`CUT_GAIN` times the whole charts'.
 
     Args:
         mesh: the mesh.
@@ -275,11 +320,51 @@ def repack(
         The :class:`Atlas`, its guards checked (:func:`check_atlas`).
     """
     charts = chart_labels(mesh)
+    whole = plan_charts(mesh, sizes, charts, tri_ids, samples_per_side, max_scale)
+    longest = cut_lengths(mesh, whole, charts)
+    facts = {"charts_cut": int(np.isfinite(longest).sum()), "k_whole": whole.facts["k"]}
+    atlas = whole
+    if facts["charts_cut"]:
+        pieces = cut_charts(mesh, charts, longest)
+        cut = plan_charts(mesh, sizes, pieces, tri_ids, samples_per_side, max_scale)
+        facts["k_cut"] = cut.facts["k"]
+        if cut.facts["k"] >= CUT_GAIN * whole.facts["k"]:
+            atlas = cut
+    facts["cut"] = atlas is not whole
+    facts["vertices_added"] = len(mesh.with_uvs(atlas.uvs).uvs) - len(mesh.uvs)
+    atlas.facts.update(facts)
+    return atlas
+
+
+def cut_lengths(mesh: TexturedMesh, atlas: Atlas, charts: np.ndarray) -> np.ndarray:
+    """``(C,)`` float64 longest piece of each chart (old UV units) for
+    :func:`~geoscaler.uvmaps.cut_charts`: :data:`CUT_SIDE` of the atlas at the chart's packed
+    scale where its packed side is longer than that, ``inf`` elsewhere (charts not moved
+    too)."""
+    count = len(atlas.planned)
+    _, extent = chart_boxes(mesh, charts, count)
+    longest = np.full(count, np.inf)
+    moved = np.unique(atlas.chart_of_face[atlas.chart_of_face >= 0])
+    spans = atlas.planned[moved] * extent[moved].max(axis=1) > CUT_SIDE
+    longest[moved[spans]] = CUT_SIDE / atlas.planned[moved[spans]]
+    return longest
+
+
+def plan_charts(
+    mesh: TexturedMesh,
+    sizes: Sequence[tuple[int, int] | None],
+    charts: np.ndarray,
+    tri_ids: Sequence[torch.Tensor],
+    samples_per_side: int,
+    max_scale: float | None,
+) -> Atlas:
+    """The layout of ``charts`` (``(F,)`` labels, each chart moved whole) as :func:`repack`
+    plans it."""
     groups, kept = layout_groups(mesh, sizes, charts)
     count = int(charts.max()) + 1 if len(charts) else 0
     chart_area = np.bincount(charts, np.abs(uv_areas(mesh.uvs, mesh.faces)), minlength=count)
     atlas = Atlas(
-        np.array(mesh.uvs, np.float32),
+        mesh.corner_uvs().copy(),
         np.full(len(mesh.faces), -1, np.int64),
         np.zeros(count),
         np.tile(np.eye(2), (count, 1, 1)),
@@ -314,7 +399,7 @@ def _lay_out(
     """Pack the charts of ``materials`` into ``atlas`` (in place), or leave ``atlas`` as it
     was and raise :class:`~geoscaler.packing.PackingError` when they do not fit or break a
     guard."""
-    faces, group, ids = group_charts(mesh, materials, charts)
+    faces, group, ids, shift = group_charts(mesh, materials, charts)
     size = atlas.sizes[materials[0]][0]
     padding = padding_for(mesh, mesh.faces[faces], (size, size), samples_per_side)
     rotate = not has_normal_map(mesh, materials)
@@ -326,10 +411,10 @@ def _lay_out(
         packed = pack(group, scales, size, padding + PACKER_MARGIN, rotate)
     before = copy.deepcopy(atlas)
     atlas.planned[ids] = scales * packed.texels_per_unit / size
-    atlas.linear[ids], atlas.offset[ids] = packed.linear, packed.offset
+    atlas.linear[ids] = packed.linear
+    atlas.offset[ids] = packed.offset + np.einsum("cij,cj->ci", packed.linear, shift)
     atlas.mirrored[ids] = np.linalg.det(packed.linear) < 0
-    vertices = mesh.faces[faces].reshape(-1)
-    atlas.uvs[vertices] = packed.apply(group)[group.corner_faces.reshape(-1)]
+    atlas.uvs[faces] = packed.apply(group)[group.corner_faces]
     atlas.chart_of_face[faces] = charts[faces]
     atlas.groups.append(materials)
     atlas.paddings.append(padding)
@@ -387,24 +472,24 @@ def layout_facts(
 
 
 def chart_texels(
-    uvs: np.ndarray, faces: np.ndarray, labels: np.ndarray, size: int, supersample: int = 2
+    corner_uvs: np.ndarray, labels: np.ndarray, size: int, supersample: int = 2
 ) -> tuple[np.ndarray, np.ndarray]:
     """Texels each face's chart covers: ``((N,) flat texel index, (N,) label)`` pairs, each
     once, where a texel counts as covered when one of its ``supersample^2`` sample centres
     lies in a face (edges included); repeat addressing wraps texels onto the grid.
 
     Args:
-        uvs: ``(V, 2)`` UVs; faces: ``(F, 3)``; labels: ``(F,)`` int chart of each face;
-        size: texels per side.
+        corner_uvs: ``(F, 3, 2)`` UVs of each face's corners; labels: ``(F,)`` int chart of
+            each face; size: texels per side.
     """
     grid = size * supersample
-    corners = np.asarray(uvs, np.float64)[faces]
+    corners = np.asarray(corner_uvs, np.float64)
     points = np.stack([corners[..., 0] * grid, (1.0 - corners[..., 1]) * grid], axis=-1)
     low = np.ceil(points.min(axis=1) - 0.5).astype(np.int64)
     high = np.floor(points.max(axis=1) - 0.5).astype(np.int64)
     span = np.maximum(high - low + 1, 0)
     counts = span[:, 0] * span[:, 1]
-    face = np.repeat(np.arange(len(faces)), counts)
+    face = np.repeat(np.arange(len(corners)), counts)
     rank = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
     x = low[face, 0] + rank % np.maximum(span[face, 0], 1) + 0.5
     y = low[face, 1] + rank // np.maximum(span[face, 0], 1) + 0.5
@@ -465,12 +550,12 @@ def group_problems(mesh: TexturedMesh, atlas: Atlas, group: int) -> list[str]:
     wrong = np.abs(atlas.scales[charts] / np.maximum(atlas.planned[charts], 1e-30) - 1)
     if (wrong > SCALE_TOLERANCE).any():
         problems.append(f"{int((wrong > SCALE_TOLERANCE).sum())} charts not at their planned scale")
-    corners = mesh.faces[faces]  # (M, 3)
-    mapped = np.einsum("mij,mkj->mki", atlas.linear[chart], mesh.uvs[corners].astype(float))
+    old_corners, new_corners = mesh.corner_uvs()[faces].astype(float), atlas.uvs[faces]
+    mapped = np.einsum("mij,mkj->mki", atlas.linear[chart], old_corners)
     mapped += atlas.offset[chart][:, None]
-    if np.abs(mapped - atlas.uvs[corners]).max(initial=0) > 1e-5:
+    if np.abs(mapped - new_corners).max(initial=0) > 1e-5:
         problems.append("faces not moved by their chart's map")
-    old, new = uv_areas(mesh.uvs, corners), uv_areas(atlas.uvs, corners)
+    old, new = corner_areas(old_corners), corner_areas(new_corners)
     expected = np.linalg.det(atlas.linear[chart]) * old
     flipped = (np.sign(new) != np.sign(expected)) & (np.abs(expected) > 1e-14)
     if flipped.any():
@@ -479,7 +564,7 @@ def group_problems(mesh: TexturedMesh, atlas: Atlas, group: int) -> list[str]:
         problems.append("a chart of a material with a normal map was mirrored")
     size = atlas.sizes[materials[0]][0]
     pieces = map_pieces(atlas)[chart]
-    texels, labels = chart_texels(atlas.uvs, corners, pieces, size)
+    texels, labels = chart_texels(new_corners, pieces, size)
     shared = overlapping_texels(texels, labels)
     if len(shared):
         problems.append(f"{len(shared)} texels covered by two charts")

@@ -120,14 +120,12 @@ class ChartMaps:
     """Faces in a new layout and the maps that moved their charts there.
 
     Attributes:
-        uvs: ``(V, 2)`` new UVs in [0, 1] (v up).
-        faces: ``(F, 3)`` the faces to bake.
+        corners: ``(F, 3, 2)`` new UVs in [0, 1] (v up) of the corners of the faces to bake.
         face_chart: ``(F,)`` int64 chart of each face.
         linear, offset: ``(C, 2, 2)`` and ``(C, 2)`` float64, ``new = linear @ old + offset``.
     """
 
-    uvs: np.ndarray
-    faces: np.ndarray
+    corners: np.ndarray
     face_chart: np.ndarray
     linear: np.ndarray
     offset: np.ndarray
@@ -137,7 +135,7 @@ def _nearest_chart(layout: ChartMaps, grid: int, reach: int) -> tuple[torch.Tens
     """``((grid, grid) int64 chart of each sample, -1 beyond reach; (grid, grid) bool samples
     a face covers)``: a sample no face covers takes its nearest covered sample's chart if it
     is at most ``reach`` samples away."""
-    corners = torch.from_numpy(np.asarray(layout.uvs, np.float64)[layout.faces]).reshape(-1, 2)
+    corners = torch.from_numpy(np.asarray(layout.corners, np.float64)).reshape(-1, 2)
     depth = torch.zeros(len(corners), 1)
     clip = torch.cat([corners * 2 - 1, depth, torch.ones_like(depth)], dim=1)
     gbuffer = rasterize(clip, torch.arange(len(clip)).view(-1, 3), grid)

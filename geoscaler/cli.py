@@ -26,8 +26,7 @@ DEFAULT_DEMO_DIR = Path("assets")
 def mesh_info(path: Path) -> dict:
     """Facts about a mesh file: sizes, materials, textures, UV charts and texture coverage."""
     from geoscaler.io import load_mesh
-    from geoscaler.mesh import uv_coverage
-    from geoscaler.uvmaps import chart_labels
+    from geoscaler.uvmaps import chart_labels, uv_coverage
 
     mesh = load_mesh(path)
     materials = []

@@ -188,7 +188,7 @@ def export(
     if result.layout is not None:  # every other map follows the new UV layout
         premade = relayout_maps(mesh, result.layout, plan)
         mesh = without_stale_tangents(mesh, result.layout)
-    out_mesh, maps = ship_asset(replace(mesh, uvs=uvs), plan, result.textures, method, premade)
+    out_mesh, maps = ship_asset(mesh.with_uvs(uvs), plan, result.textures, method, premade)
     written = save_mesh(out_mesh, output, overwrite=force, image_format=image_format)
     for shipped in maps:
         shipped.bytes_after = image_bytes(out_mesh, shipped.pixels, output, image_format)

@@ -185,6 +185,49 @@ class TexturedMesh:
                 raise ValueError(f"uvs must have shape {self.uvs.shape}, got {new_uvs.shape}")
         return replace(self, uvs=new_uvs, materials=materials)
 
+    def corner_uvs(self, uvs: np.ndarray | None = None) -> np.ndarray:
+        """``(F, 3, 2)`` float32 UV of every face corner: of ``uvs``, ``(V, 2)`` per vertex or
+        ``(F, 3, 2)`` per corner already, or of the mesh's own when None."""
+        uvs = self.uvs if uvs is None else np.asarray(uvs, np.float32)
+        if uvs.shape == self.uvs.shape:
+            return uvs[self.faces]
+        if uvs.shape != (len(self.faces), 3, 2):
+            raise ValueError(
+                f"uvs must have shape {self.uvs.shape} (per vertex) or "
+                f"{(len(self.faces), 3, 2)} (per face corner), got {uvs.shape}"
+            )
+        return uvs
+
+    def with_uvs(self, uvs: np.ndarray) -> TexturedMesh:
+        """A copy with new UVs, ``(V, 2)`` per vertex or ``(F, 3, 2)`` per face corner.
+
+        A vertex whose corners get different UVs (a layout that cut a chart through it) is
+        split: the corners of its first UV in sorted order keep it, each other UV gets a copy
+        appended (position, normal, point and attributes copied). Faces keep their order and
+        every corner its position, so the copy renders as the mesh does with those UVs; where
+        no corners disagree it has the same vertices."""
+        if np.shape(uvs) == self.uvs.shape:
+            return replace(self, uvs=np.asarray(uvs, np.float32))
+        corners = np.ascontiguousarray(self.corner_uvs(uvs).reshape(-1, 2))
+        count = len(self.positions)
+        keys = np.column_stack([self.faces.reshape(-1), corners.view(np.int32)])
+        unique, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+        vertex = unique[:, 0]
+        keeps = np.r_[True, vertex[1:] != vertex[:-1]]
+        ids = np.where(keeps, vertex, count + np.cumsum(~keeps) - 1)
+        source = np.concatenate([np.arange(count), vertex[~keeps]])
+        new_uvs = self.uvs[source]
+        new_uvs[ids] = corners[first]
+        return replace(
+            self,
+            positions=self.positions[source],
+            faces=ids[inverse.reshape(-1)].reshape(-1, 3),
+            uvs=new_uvs,
+            normals=self.normals[source],
+            vertex_to_point=self.vertex_to_point[source],
+            attributes={name: values[source] for name, values in self.attributes.items()},
+        )
+
     def images(self) -> list[tuple[np.ndarray, list[tuple[int, str]]]]:
         """Every distinct texture array (base colours and maps, by identity) with the
         ``(material index, slot)`` pairs that show it.
@@ -493,92 +536,3 @@ def check_visible(mesh: TexturedMesh, what: str) -> None:
             f"{what}: its textured triangles are too small to be seen in any view (together "
             f"{area:.2g} of the unit sphere the mesh is scaled to); repair the mesh"
         )
-
-
-COVERAGE_WORK = 20_000_000
-"""Most (face, texel row) spans :func:`uv_coverage` walks: about a second of numpy work."""
-_CHUNK = 1_000_000
-
-
-def uv_coverage(mesh: TexturedMesh, material: int = 0, resolution: int = 512) -> float | None:
-    """Fraction of the texture's area covered by at least one face of ``material``.
-
-    Texel centres of a ``resolution x resolution`` grid inside a face count, with repeat
-    addressing (UVs outside ``[0, 1]`` wrap). The cost grows with the texel rows the faces
-    span, not with their area: each face is walked row by row, or column by column when it is
-    taller than wide, into a per-row difference array. Identical faces count once, and a face
-    that contains a whole texture repeat (an inscribed circle of radius at least
-    ``sqrt(2) / 2``) covers everything. When the faces span more rows than
-    :data:`COVERAGE_WORK` allows, the grid is halved (the figure is then measured on the
-    coarser grid), down to 64 texels; beyond that the coverage is not measured (None).
-
-    Returns
-    -------
-    float or None
-        In ``[0, 1]``; 0 for a material without faces.
-    """
-    faces = mesh.faces[mesh.face_material == material]
-    corners = np.asarray(mesh.uvs, dtype=np.float64)[faces]  # (F, 3, 2)
-    corners = corners - np.floor(corners.mean(axis=1, keepdims=True))
-    corners = np.unique(corners.reshape(-1, 6), axis=0).reshape(-1, 3, 2)
-    if not len(corners):
-        return 0.0
-    edges = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).sum(axis=1)
-    side, other = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
-    doubled_area = np.abs(side[:, 0] * other[:, 1] - side[:, 1] * other[:, 0])
-    if (doubled_area >= edges * np.sqrt(0.5)).any():  # inradius = 2 area / perimeter
-        return 1.0
-    extent = corners.max(axis=1) - corners.min(axis=1)  # (F, 2) in repeats
-    by_columns = extent[:, 1] > extent[:, 0]
-    work = float(np.minimum(extent[:, 0], extent[:, 1]).sum()) + len(corners) / resolution
-    while work * resolution > COVERAGE_WORK:
-        if resolution <= 64:
-            return None
-        resolution //= 2
-    texels = corners * resolution
-    texels[..., 1] = resolution - texels[..., 1]  # row 0 at the top, as everywhere
-    covered = _row_coverage(texels[~by_columns], resolution)
-    covered |= _row_coverage(texels[by_columns][..., ::-1], resolution).T
-    return float(covered.mean())
-
-
-def _row_coverage(corners: np.ndarray, size: int) -> np.ndarray:
-    """``(size, size)`` bool: texel centres ``(col + 0.5, row + 0.5)`` inside any triangle of
-    ``(F, 3, 2)`` ``(x, y)`` texel coordinates, wrapped onto the grid, walked row by row."""
-    lo = np.ceil(corners[..., 1].min(axis=1) - 0.5).astype(np.int64)
-    hi = np.floor(corners[..., 1].max(axis=1) - 0.5).astype(np.int64)
-    rows = np.maximum(hi - lo + 1, 0)
-    ends = np.cumsum(rows)
-    counts = np.zeros(size * (size + 1), dtype=np.int64)  # + at a span's start, - at its end
-    for first in range(0, int(ends[-1]) if len(ends) else 0, _CHUNK):
-        pair = np.arange(first, min(first + _CHUNK, int(ends[-1])))
-        face = np.searchsorted(ends, pair, side="right")
-        row = lo[face] + pair - (ends[face] - rows[face])
-        left, right = _spans(corners[face], row + 0.5)
-        keep = np.isfinite(left) & np.isfinite(right)
-        col0 = np.ceil(left[keep] - 0.5).astype(np.int64)
-        length = np.floor(right[keep] - 0.5).astype(np.int64) + 1 - col0
-        row, col0 = np.mod(row[keep], size), np.mod(col0, size)
-        end = col0 + np.clip(length, 0, size)  # beyond size: wraps to the row's start
-        flat = row * (size + 1)
-        wrapped = end > size
-        opened = np.concatenate([flat + col0, flat[wrapped]])
-        closed = np.concatenate([flat + np.minimum(end, size), flat[wrapped] + end[wrapped] - size])
-        counts += np.bincount(opened, minlength=counts.size) - np.bincount(
-            closed, minlength=counts.size
-        )
-    return np.cumsum(counts.reshape(size, size + 1), axis=1)[:, :size] > 0
-
-
-def _spans(corners: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Left and right x of ``(N, 3, 2)`` triangles at heights ``(N,)``: where the edges that
-    straddle ``y`` cross it (left > right where none does)."""
-    a, b = corners, np.roll(corners, -1, axis=1)
-    dy = b[..., 1] - a[..., 1]
-    with np.errstate(divide="ignore", invalid="ignore"):  # dy = 0: masked out below
-        t = (y[:, None] - a[..., 1]) / dy
-        x = a[..., 0] + t * (b[..., 0] - a[..., 0])
-    crossing = (dy != 0) & (t >= 0) & (t <= 1)
-    left = np.where(crossing, x, np.inf).min(axis=1)
-    right = np.where(crossing, x, -np.inf).max(axis=1)
-    return left, right

@@ -117,7 +117,12 @@ class Packed:
 
 def signed_areas(uvs: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """``(F,)`` float64 signed area of each face (positive: counter-clockwise)."""
-    corners = np.asarray(uvs, np.float64)[faces]
+    return corner_areas(np.asarray(uvs, np.float64)[faces])
+
+
+def corner_areas(corners: np.ndarray) -> np.ndarray:
+    """``(F,)`` float64 signed area of ``(F, 3, 2)`` triangles (positive: counter-clockwise)."""
+    corners = np.asarray(corners, np.float64)
     a, b = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
     return 0.5 * (a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
 

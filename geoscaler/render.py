@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Sequence
-from dataclasses import replace
 
 import numpy as np
 import torch
@@ -57,14 +56,15 @@ class Renderer:
 
     def relaid(self, uvs: np.ndarray, memo: dict | None = None) -> Renderer:
         """A renderer of the same mesh in a new UV layout: ``(V, 2)`` new UVs of the same
-        vertices (3D positions and faces unchanged, so every G-buffer is the same). Candidates
-        are rendered with the new UVs, references as before: the original maps on the
-        original UVs. ``memo`` (a dict, shared with other renderers of the mesh) keeps each
+        vertices or ``(F, 3, 2)`` of every face corner (3D positions and faces unchanged, so
+        every G-buffer is the same; its :attr:`mesh` is :meth:`TexturedMesh.with_uvs`'s).
+        Candidates are rendered with the new UVs, references as before: the original maps on
+        the original UVs. ``memo`` (a dict, shared with other renderers of the mesh) keeps each
         camera's G-buffer and reference so a view is rasterised once (:meth:`cached_view`).
         """
         relaid = copy.copy(self)
-        relaid.mesh = replace(self.mesh, uvs=np.asarray(uvs, np.float32))
-        relaid.uvs = torch.as_tensor(relaid.mesh.uvs, device=self.device)
+        relaid.mesh = self.original.with_uvs(uvs)
+        relaid.uvs = torch.as_tensor(np.asarray(uvs, np.float32), device=self.device)
         relaid.reference_uvs = self.uvs if self.reference_uvs is None else self.reference_uvs
         relaid.view_memo = memo
         return relaid
@@ -122,10 +122,13 @@ class Renderer:
 
         Args:
             gbuffer: visibility from :meth:`rasterize`.
-            uvs: ``(V, 2)`` UVs to use instead of the mesh's own (e.g. warped ones).
+            uvs: UVs to use instead of the renderer's own: ``(V, 2)`` per vertex (e.g. warped
+                ones) or ``(F, 3, 2)`` per face corner (a layout that cut charts).
         """
         uvs = self.uvs if uvs is None else uvs
-        corner_uvs = uvs.index_select(0, self.faces.view(-1)).view(-1, 3, 2).permute(2, 0, 1)
+        if uvs.dim() == 2:
+            uvs = uvs.index_select(0, self.faces.view(-1)).view(-1, 3, 2)
+        corner_uvs = uvs.permute(2, 0, 1)
         (u, v), (du_dx, dv_dx), (du_dy, dv_dy) = gbuffer.interpolate(corner_uvs)
         return UVFootprint(u, v, du_dx, dv_dx, du_dy, dv_dy)
 
@@ -140,7 +143,7 @@ class Renderer:
         Args:
             gbuffer: visibility from :meth:`rasterize`.
             textures: one mip chain per material (None: the factor alone is the colour).
-            uvs: ``(V, 2)`` UVs to use instead of the mesh's own (e.g. warped ones).
+            uvs: UVs to use instead of the renderer's own (:meth:`footprint`).
 
         Returns:
             ``(3, N)`` float32 linear RGB, in the order of ``gbuffer.pixels``.

@@ -338,6 +338,8 @@ def _layout_lines(method: str, details: dict[str, Any]) -> list[str]:
     else:
         line += "the mesh's own layout kept"
     lines = [line]
+    if used == "repack" and details.get("shipped", method) == method and layout.get("charts_cut"):
+        lines.append(_cut_line(layout))
     if details.get("race"):
         trials = []
         for name, trial in details["race"].items():
@@ -350,3 +352,15 @@ def _layout_lines(method: str, details: dict[str, Any]) -> list[str]:
         lines.append(f"  trials on the validation's Q: {', '.join(trials)}; the better went on")
     lines += [f"  {name}: layout kept, {reason}" for name, reason in layout["kept"].items()]
     return lines
+
+
+def _cut_line(layout: dict[str, Any]) -> str:
+    """What became of the charts longer than half the atlas (:func:`geoscaler.atlas.repack`)."""
+    count = layout["charts_cut"]
+    charts = f"{count} chart{'' if count == 1 else 's'} longer than half the atlas"
+    if layout["cut"]:
+        return (
+            f"  {charts} cut along face edges (x{layout['k_whole']:.2f} whole): "
+            f"{layout['vertices_added']} vertices added on the cuts"
+        )
+    return f"  {charts} kept whole: cut, they reached x{layout['k_cut']:.2f}, too little more"

@@ -97,9 +97,7 @@ def relayout_maps(
     made: dict[int, tuple[np.ndarray, str]] = {}
     for group, padding in zip(atlas.groups, atlas.paddings, strict=True):
         faces = np.isin(mesh.face_material, group) & (atlas.chart_of_face >= 0)
-        layout = ChartMaps(
-            atlas.uvs, mesh.faces[faces], atlas.chart_of_face[faces], atlas.linear, atlas.offset
-        )
+        layout = ChartMaps(atlas.uvs[faces], atlas.chart_of_face[faces], atlas.linear, atlas.offset)
         for index in group:
             material = mesh.materials[index]
             for slot, pixels in material.maps.items():

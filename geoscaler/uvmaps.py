@@ -47,16 +47,60 @@ def tiled_face_uvs(mesh: TexturedMesh, faces: np.ndarray) -> np.ndarray:
 def chart_labels(mesh: TexturedMesh) -> np.ndarray:
     """``(F,)`` int64 UV chart of every face: faces joined through shared UV-space corners
     (:func:`uv_corner_ids`)."""
-    corner_id = uv_corner_ids(mesh)[mesh.faces]  # (F, 3)
-    num_faces = len(mesh.faces)
-    # Bipartite graph face <-> corner; components of it are the charts.
+    return _joined(uv_corner_ids(mesh)[mesh.faces])
+
+
+def _joined(corner_ids: np.ndarray) -> np.ndarray:
+    """``(F,)`` int64 compact label of the faces ``(F, 3)`` joined through shared corner ids:
+    the components of the bipartite graph face <-> corner, numbered by their first face."""
+    num_faces = len(corner_ids)
+    if num_faces == 0:
+        return np.zeros(0, np.int64)
+    _, corners = np.unique(corner_ids, return_inverse=True)
     rows = np.repeat(np.arange(num_faces), 3)
-    cols = num_faces + corner_id.reshape(-1)
-    size = num_faces + int(corner_id.max()) + 1 if num_faces else 0
+    cols = num_faces + corners.reshape(-1)
+    size = num_faces + int(corners.max()) + 1
     graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(size, size))
     _, labels = connected_components(graph, directed=False)
     _, charts = np.unique(labels[:num_faces], return_inverse=True)
     return charts.astype(np.int64)
+
+
+def cut_charts(mesh: TexturedMesh, charts: np.ndarray, longest: np.ndarray) -> np.ndarray:
+    """``(F,)`` int64 compact chart labels where every chart whose UV bounding box is longer
+    than ``longest[chart]`` (UV units; ``inf``: never cut) is cut into pieces no longer than
+    that, as far as its faces allow.
+
+    A piece too long is halved across its longer side at the middle of its box (each face
+    goes to the side of its UV centroid), and each half's connected parts are cut again; so
+    cuts run along face edges and every piece is connected. A piece whose faces all lie on
+    one side (one long face) stays whole. ``charts`` is ``(F,)`` (:func:`chart_labels`);
+    pieces are numbered in the order of their first face.
+    """
+    corner_ids = uv_corner_ids(mesh)[mesh.faces]  # (F, 3)
+    corners = mesh.corner_uvs().astype(np.float64)  # (F, 3, 2)
+    low, high, centroid = corners.min(axis=1), corners.max(axis=1), corners.mean(axis=1)
+    labels = np.array(charts, np.int64)
+    fresh = int(labels.max(initial=-1)) + 1
+    for chart in np.unique(charts[np.isfinite(longest[charts])]):
+        stack, kept_label = [np.flatnonzero(charts == chart)], False
+        while stack:
+            faces = stack.pop()
+            box_low, box_high = low[faces].min(axis=0), high[faces].max(axis=0)
+            axis = int(np.argmax(box_high - box_low))
+            middle = (box_low[axis] + box_high[axis]) / 2
+            side = centroid[faces, axis] < middle
+            if box_high[axis] - box_low[axis] > longest[chart] and 0 < side.sum() < len(faces):
+                for half in (faces[side], faces[~side]):
+                    parts = _joined(corner_ids[half])
+                    order = np.argsort(parts, kind="stable")
+                    stack.extend(np.split(half[order], np.cumsum(np.bincount(parts))[:-1]))
+                continue
+            if kept_label:
+                labels[faces], fresh = fresh, fresh + 1
+            kept_label = True
+    _, first, inverse = np.unique(labels, return_index=True, return_inverse=True)
+    return np.argsort(np.argsort(first))[inverse.reshape(-1)].astype(np.int64)
 
 
 def rasterize_uv(mesh: TexturedMesh, resolution: int, material: int | None = None) -> GBuffer:
@@ -421,3 +465,95 @@ def _dilate_wrapped(mask: torch.Tensor) -> torch.Tensor:
     grid = mask.to(torch.float64)[None, None]
     padded = torch.nn.functional.pad(grid, (1, 1, 1, 1), mode="circular")
     return torch.nn.functional.max_pool2d(padded, 3, stride=1)[0, 0]
+
+
+# ------------------------------------------------------------------------------ coverage
+
+
+COVERAGE_WORK = 20_000_000
+"""Most (face, texel row) spans :func:`uv_coverage` walks: about a second of numpy work."""
+_CHUNK = 1_000_000
+
+
+def uv_coverage(mesh: TexturedMesh, material: int = 0, resolution: int = 512) -> float | None:
+    """Fraction of the texture's area covered by at least one face of ``material``.
+
+    Texel centres of a ``resolution x resolution`` grid inside a face count, with repeat
+    addressing (UVs outside ``[0, 1]`` wrap). The cost grows with the texel rows the faces
+    span, not with their area: each face is walked row by row, or column by column when it is
+    taller than wide, into a per-row difference array. Identical faces count once, and a face
+    that contains a whole texture repeat (an inscribed circle of radius at least
+    ``sqrt(2) / 2``) covers everything. When the faces span more rows than
+    :data:`COVERAGE_WORK` allows, the grid is halved (the figure is then measured on the
+    coarser grid), down to 64 texels; beyond that the coverage is not measured (None).
+
+    Returns
+    -------
+    float or None
+        In ``[0, 1]``; 0 for a material without faces.
+    """
+    faces = mesh.faces[mesh.face_material == material]
+    corners = np.asarray(mesh.uvs, dtype=np.float64)[faces]  # (F, 3, 2)
+    corners = corners - np.floor(corners.mean(axis=1, keepdims=True))
+    corners = np.unique(corners.reshape(-1, 6), axis=0).reshape(-1, 3, 2)
+    if not len(corners):
+        return 0.0
+    edges = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).sum(axis=1)
+    side, other = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    doubled_area = np.abs(side[:, 0] * other[:, 1] - side[:, 1] * other[:, 0])
+    if (doubled_area >= edges * np.sqrt(0.5)).any():  # inradius = 2 area / perimeter
+        return 1.0
+    extent = corners.max(axis=1) - corners.min(axis=1)  # (F, 2) in repeats
+    by_columns = extent[:, 1] > extent[:, 0]
+    work = float(np.minimum(extent[:, 0], extent[:, 1]).sum()) + len(corners) / resolution
+    while work * resolution > COVERAGE_WORK:
+        if resolution <= 64:
+            return None
+        resolution //= 2
+    texels = corners * resolution
+    texels[..., 1] = resolution - texels[..., 1]  # row 0 at the top, as everywhere
+    covered = _row_coverage(texels[~by_columns], resolution)
+    covered |= _row_coverage(texels[by_columns][..., ::-1], resolution).T
+    return float(covered.mean())
+
+
+def _row_coverage(corners: np.ndarray, size: int) -> np.ndarray:
+    """``(size, size)`` bool: texel centres ``(col + 0.5, row + 0.5)`` inside any triangle of
+    ``(F, 3, 2)`` ``(x, y)`` texel coordinates, wrapped onto the grid, walked row by row."""
+    lo = np.ceil(corners[..., 1].min(axis=1) - 0.5).astype(np.int64)
+    hi = np.floor(corners[..., 1].max(axis=1) - 0.5).astype(np.int64)
+    rows = np.maximum(hi - lo + 1, 0)
+    ends = np.cumsum(rows)
+    counts = np.zeros(size * (size + 1), dtype=np.int64)  # + at a span's start, - at its end
+    for first in range(0, int(ends[-1]) if len(ends) else 0, _CHUNK):
+        pair = np.arange(first, min(first + _CHUNK, int(ends[-1])))
+        face = np.searchsorted(ends, pair, side="right")
+        row = lo[face] + pair - (ends[face] - rows[face])
+        left, right = _spans(corners[face], row + 0.5)
+        keep = np.isfinite(left) & np.isfinite(right)
+        col0 = np.ceil(left[keep] - 0.5).astype(np.int64)
+        length = np.floor(right[keep] - 0.5).astype(np.int64) + 1 - col0
+        row, col0 = np.mod(row[keep], size), np.mod(col0, size)
+        end = col0 + np.clip(length, 0, size)  # beyond size: wraps to the row's start
+        flat = row * (size + 1)
+        wrapped = end > size
+        opened = np.concatenate([flat + col0, flat[wrapped]])
+        closed = np.concatenate([flat + np.minimum(end, size), flat[wrapped] + end[wrapped] - size])
+        counts += np.bincount(opened, minlength=counts.size) - np.bincount(
+            closed, minlength=counts.size
+        )
+    return np.cumsum(counts.reshape(size, size + 1), axis=1)[:, :size] > 0
+
+
+def _spans(corners: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Left and right x of ``(N, 3, 2)`` triangles at heights ``(N,)``: where the edges that
+    straddle ``y`` cross it (left > right where none does)."""
+    a, b = corners, np.roll(corners, -1, axis=1)
+    dy = b[..., 1] - a[..., 1]
+    with np.errstate(divide="ignore", invalid="ignore"):  # dy = 0: masked out below
+        t = (y[:, None] - a[..., 1]) / dy
+        x = a[..., 0] + t * (b[..., 0] - a[..., 0])
+    crossing = (dy != 0) & (t >= 0) & (t <= 1)
+    left = np.where(crossing, x, np.inf).min(axis=1)
+    right = np.where(crossing, x, -np.inf).max(axis=1)
+    return left, right

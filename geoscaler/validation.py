@@ -258,7 +258,7 @@ class Validation:
         Args:
             textures: per material the ``(h, w, 3)`` linear texture as it ships (8-bit
                 quantised) or None.
-            uvs: ``(V, 2)`` UVs, or None for the mesh's own.
+            uvs: UVs (:meth:`geoscaler.render.Renderer.footprint`), or None for the mesh's own.
         """
         self.freeze()
         mips = mip_chains(textures)

@@ -202,3 +202,26 @@ def three_material_demo() -> TexturedMesh:
         Material("plain", None, np.array([0.2, 0.4, 0.6, 1.0], dtype=np.float32)),
     ]
     return mesh
+
+
+def ribbon_mesh(quads: int = 16, texture_size: int = 128) -> TexturedMesh:
+    """A strip of ``quads`` unit quads along x, one UV chart 0.9 long and 0.1 wide across the
+    middle of a random texture: a chart that spans its atlas, as a scan's longest ones do."""
+    x = np.repeat(np.arange(quads + 1, dtype=np.float64), 2)
+    y = np.tile([0.0, 1.0], quads + 1)
+    positions = np.stack([x, y, np.zeros_like(x)], axis=1).astype(np.float32)
+    uvs = np.stack([0.05 + 0.9 * x / quads, 0.45 + 0.1 * y], axis=1).astype(np.float32)
+    first = 2 * np.arange(quads)[:, None]
+    faces = np.concatenate([first + [0, 2, 3], first + [0, 3, 1]]).astype(np.int64)
+    vertex_to_point = np.arange(len(positions))
+    rng = np.random.default_rng(3)
+    texture = rng.integers(0, 256, (texture_size, texture_size, 3), dtype=np.uint8)
+    return TexturedMesh(
+        positions=positions,
+        faces=faces,
+        uvs=uvs,
+        normals=compute_vertex_normals(positions, faces, vertex_to_point),
+        vertex_to_point=vertex_to_point,
+        face_material=np.zeros(len(faces), np.int64),
+        materials=[Material("ribbon", texture)],
+    )

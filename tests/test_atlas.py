@@ -8,9 +8,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
+from mesh_support import ribbon_mesh
 
 from geoscaler import packing
 from geoscaler.atlas import (
+    CUT_GAIN,
     atlas_problems,
     chart_footprint,
     chart_texels,
@@ -26,7 +28,7 @@ from geoscaler.mesh import Material, TexturedMesh, compute_vertex_normals
 from geoscaler.packing import Charts, PackingError, pack
 from geoscaler.render import Renderer
 from geoscaler.sizes import COLOR, DATA, NORMAL
-from geoscaler.uvmaps import chart_labels
+from geoscaler.uvmaps import chart_labels, cut_charts
 from geoscaler.views import ViewSet
 
 SIZE = 64
@@ -99,7 +101,10 @@ def test_repack_raises_the_density_of_a_sparse_atlas():
     # six squares of 0.12 side: three abreast, each up to a third of the side less padding
     assert 1.5 < atlas.facts["k"] < 64 / 3 / (0.12 * 64)
     assert atlas.uvs.min() >= 0 and atlas.uvs.max() <= 1
-    assert atlas.uvs.shape == mesh.uvs.shape  # every vertex keeps one UV: no split
+    assert atlas.uvs.shape == (len(mesh.faces), 3, 2)  # a UV per face corner
+    assert atlas.facts["charts_cut"] == 0 and not atlas.facts["cut"]  # no chart spans half
+    assert atlas.facts["vertices_added"] == 0
+    assert len(mesh.with_uvs(atlas.uvs).uvs) == len(mesh.uvs)  # every vertex keeps one UV
 
 
 def test_each_chart_moves_by_a_similarity_at_its_planned_scale():
@@ -112,14 +117,14 @@ def test_each_chart_moves_by_a_similarity_at_its_planned_scale():
         assert sorted(np.abs(signs).ravel().round(12).tolist()) == [0, 0, 1, 1]
     mapped = np.einsum("fij,fkj->fki", atlas.linear[chart_labels(mesh)], mesh.uvs[mesh.faces])
     mapped += atlas.offset[chart_labels(mesh)][:, None]
-    np.testing.assert_allclose(mapped, atlas.uvs[mesh.faces], atol=1e-6)
+    np.testing.assert_allclose(mapped, atlas.uvs, atol=1e-6)
 
 
 def test_the_new_layout_passes_every_guard():
     mesh = cube_mesh()
     atlas = repack(mesh, [(SIZE, SIZE)], footprint_ids(mesh, [40, 10, 20, 10, 5, 10]), 256)
     assert atlas_problems(mesh, atlas) == []
-    texels, labels = chart_texels(atlas.uvs, mesh.faces, atlas.chart_of_face, SIZE)
+    texels, labels = chart_texels(atlas.uvs, atlas.chart_of_face, SIZE)
     assert len(overlapping_texels(texels, labels)) == 0
     assert padding_violations(texels, labels, SIZE, atlas.padding) == 0
 
@@ -137,13 +142,13 @@ def test_guards_name_an_overlap_a_flip_and_a_wrong_scale():
     atlas = repack(mesh, [(SIZE, SIZE)], footprint_ids(mesh, [10] * 6), 256)
     moved = replace(atlas, uvs=atlas.uvs.copy(), planned=atlas.planned.copy())
     charts = chart_labels(mesh)
-    moved.uvs[mesh.faces[charts == 1]] = moved.uvs[mesh.faces[charts == 0]]  # onto chart 0
+    moved.uvs[charts == 1] = moved.uvs[charts == 0]  # onto chart 0
     problems = " ".join(atlas_problems(mesh, moved))
     assert "covered by two charts" in problems and "not moved by their chart's map" in problems
     flipped = replace(atlas, uvs=atlas.uvs.copy())
-    vertices = np.unique(mesh.faces[charts == 2])
-    centre = flipped.uvs[vertices].mean(axis=0)
-    flipped.uvs[vertices, 0] = 2 * centre[0] - flipped.uvs[vertices, 0]  # mirrored in place
+    faces = charts == 2
+    centre = flipped.uvs[faces].reshape(-1, 2).mean(axis=0)
+    flipped.uvs[faces, :, 0] = 2 * centre[0] - flipped.uvs[faces, :, 0]  # mirrored in place
     assert "2 faces flipped" in " ".join(atlas_problems(mesh, flipped))
     wrong = replace(atlas, planned=atlas.planned * 1.01)
     assert atlas_problems(mesh, wrong)[0] == "6 charts not at their planned scale"
@@ -241,9 +246,7 @@ def test_bake_into_the_same_layout_reproduces_the_texture():
     mesh = cube_mesh(texture_size=64)
     texture = mesh.materials[0].base_color_texture
     charts = chart_labels(mesh)
-    identity = ChartMaps(
-        mesh.uvs, mesh.faces, charts, np.tile(np.eye(2), (6, 1, 1)), np.zeros((6, 2))
-    )
+    identity = ChartMaps(mesh.corner_uvs(), charts, np.tile(np.eye(2), (6, 1, 1)), np.zeros((6, 2)))
     baked, covered = bake(texture, COLOR, identity, 64, reach=2)
     assert covered.sum() > 0
     np.testing.assert_array_equal(baked[covered], texture[covered])
@@ -253,13 +256,13 @@ def test_bake_follows_each_chart_to_its_new_place():
     mesh = cube_mesh(texture_size=64)
     texture = mesh.materials[0].base_color_texture
     atlas = repack(mesh, [(64, 64)], footprint_ids(mesh, [10] * 6), 256)
-    layout = ChartMaps(atlas.uvs, mesh.faces, atlas.chart_of_face, atlas.linear, atlas.offset)
+    layout = ChartMaps(atlas.uvs, atlas.chart_of_face, atlas.linear, atlas.offset)
     baked, covered = bake(texture, COLOR, layout, 64, reach=2)
     # a texel centre of the new map reads the original where its chart's map sends it back
     rows, cols = np.nonzero(covered)
     row, col = rows[len(rows) // 2], cols[len(cols) // 2]
     point = np.array([(col + 0.5) / 64, 1 - (row + 0.5) / 64])
-    texels, labels = chart_texels(atlas.uvs, mesh.faces, atlas.chart_of_face, 64)
+    texels, labels = chart_texels(atlas.uvs, atlas.chart_of_face, 64)
     chart = labels[texels == row * 64 + col][0]
     old = np.linalg.solve(atlas.linear[chart], point - atlas.offset[chart])
     assert atlas.scales[chart] >= 1.0  # magnified: the nearest original texels, bilinear
@@ -291,3 +294,30 @@ def test_a_relaid_renderer_sees_the_same_views_and_references():
         assert torch.equal(foreground, moved_foreground)  # view for view
         assert torch.equal(reference, moved_reference)  # the original on its own UVs
     assert relaid.view_memo and len(relaid.view_memo) == 3
+
+
+def test_a_chart_longer_than_asked_is_halved_into_connected_pieces():
+    ribbon = ribbon_mesh(quads=16)  # 32 faces: quad q is faces q and 16 + q
+    charts = chart_labels(ribbon)
+    pieces = cut_charts(ribbon, charts, np.array([0.3]))  # 0.9 long: halved twice
+    np.testing.assert_array_equal(pieces, np.tile(np.arange(16) // 4, 2))
+    np.testing.assert_array_equal(cut_charts(ribbon, charts, np.array([np.inf])), charts)
+    quad = ribbon_mesh(quads=1)  # 0.9 long: cut along its diagonal, the one inner edge
+    np.testing.assert_array_equal(cut_charts(quad, np.zeros(2, np.int64), np.array([0.5])), [0, 1])
+    triangle = replace(quad, faces=quad.faces[:1], face_material=quad.face_material[:1])
+    np.testing.assert_array_equal(cut_charts(triangle, np.zeros(1, np.int64), np.array([0.1])), [0])
+
+
+def test_a_chart_spanning_the_atlas_is_cut_where_the_pieces_pack_denser():
+    ribbon = ribbon_mesh(quads=16)
+    every_face = [torch.arange(len(ribbon.faces))]
+    atlas = repack(ribbon, [(SIZE, SIZE)], every_face, 256)
+    assert atlas.facts["charts_cut"] == 1 and atlas.facts["cut"]
+    assert atlas.facts["k"] == atlas.facts["k_cut"] >= CUT_GAIN * atlas.facts["k_whole"]
+    pieces = atlas.facts["charts"]
+    assert pieces > 1
+    assert atlas.facts["vertices_added"] == 2 * (pieces - 1)  # two vertices on each cut
+    assert atlas_problems(ribbon, atlas) == []
+    cut = ribbon.with_uvs(atlas.uvs)
+    np.testing.assert_array_equal(chart_labels(cut), atlas.chart_of_face)  # pieces as charts
+    np.testing.assert_array_equal(cut.positions[cut.faces], ribbon.positions[ribbon.faces])

@@ -3,6 +3,7 @@ references from the original, and the files written."""
 
 from __future__ import annotations
 
+import json
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -18,8 +19,10 @@ from geoscaler.job import compare_mesh
 from geoscaler.methods import MethodOptions, run_method
 from geoscaler.methods.registry import RunContext, get_method, register, unregister
 from geoscaler.protocol import Evaluation
+from geoscaler.uvmaps import chart_labels
 
 sys.path.insert(0, str(Path(__file__).parent))
+from mesh_support import ribbon_mesh  # noqa: E402
 from test_atlas import cube_mesh  # noqa: E402
 
 QUICK = Evaluation.quick((0, 20, 40))
@@ -35,12 +38,12 @@ def cube():
     return cube_mesh(texture_size=256)
 
 
-def test_repack_returns_new_uvs_of_the_same_vertices_and_its_layout(cube):
+def test_repack_returns_new_uvs_of_every_face_corner_and_its_layout(cube):
     from geoscaler.render import Renderer
 
     renderer = Renderer(cube, "cpu", QUICK)
     result = run_method("direct", cube, 4, options("repack"), RunContext(renderer))
-    assert result.layout is not None and result.uvs.shape == cube.uvs.shape
+    assert result.layout is not None and result.uvs.shape == (len(cube.faces), 3, 2)
     np.testing.assert_array_equal(result.uvs, result.layout.uvs)
     assert result.textures[0].shape == (64, 64, 3)
     assert result.details["layout_used"] == "repack"
@@ -172,6 +175,34 @@ def test_downsample_output_passes_the_gltf_validator(tmp_path, cube):
     assert reports[str(tmp_path / "small.glb")]["errors"] == 0
 
 
+def test_a_cut_layout_is_written_with_its_vertices_split_on_the_cuts(tmp_path):
+    from gltf_validator import ValidatorMissing, validate
+
+    ribbon = ribbon_mesh(quads=16, texture_size=256)
+    save_mesh(ribbon, tmp_path / "ribbon.glb")
+    status = main(
+        ["downsample", str(tmp_path / "ribbon.glb"), "-o", str(tmp_path / "small.glb"),
+         "--scale", "4", "--uv", "repack", "--steps", "2", "--device", "cpu",
+         "--report", str(tmp_path / "report.json")],
+        evaluation=QUICK,
+        optimize=LOOP,
+    )  # fmt: skip
+    assert status == 0
+    layout = json.loads((tmp_path / "report.json").read_text())["details"]["layout"]
+    assert layout["cut"] and layout["vertices_added"] > 0
+    written = load_mesh(tmp_path / "small.glb")
+    assert len(written.uvs) == len(ribbon.uvs) + layout["vertices_added"]
+    assert sorted(map(tuple, written.positions[written.faces].reshape(-1, 9))) == sorted(
+        map(tuple, ribbon.positions[ribbon.faces].reshape(-1, 9))
+    )  # the same triangles in 3D
+    assert chart_labels(written).max() + 1 == layout["charts"]  # the pieces are charts
+    try:
+        _, reports = validate([tmp_path / "small.glb"])
+    except ValidatorMissing as missing:
+        pytest.skip(str(missing))
+    assert reports[str(tmp_path / "small.glb")]["errors"] == 0
+
+
 def test_uv_needs_the_direct_method(tmp_path, cube, capsys):
     save_mesh(cube, tmp_path / "cube.glb")
     status = main(
@@ -216,3 +247,12 @@ def test_the_report_says_what_happened_to_the_layout():
         "UV layout (repack): the repacked result did not ship (lanczos did, on the own UVs)"
     )
     assert _layout_lines("direct", {"uv": "keep"}) == []
+    cut = {**layout, "charts_cut": 2, "cut": True, "k_whole": 1.02, "vertices_added": 40}
+    assert _layout_lines("direct", {**repacked, "layout": cut})[1] == (
+        "  2 charts longer than half the atlas cut along face edges (x1.02 whole): 40 vertices "
+        "added on the cuts"
+    )
+    whole = {**cut, "charts_cut": 1, "cut": False, "k_cut": 1.05}
+    assert _layout_lines("direct", {**repacked, "layout": whole})[1] == (
+        "  1 chart longer than half the atlas kept whole: cut, they reached x1.05, too little more"
+    )

@@ -7,7 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from mesh_support import TEXTURE, two_material_mesh
+from mesh_support import TEXTURE, ribbon_mesh, two_material_mesh
 
 from geoscaler.errors import GeoscalerError
 from geoscaler.filters import box
@@ -18,9 +18,9 @@ from geoscaler.mesh import (
     check_geometry,
     check_texture,
     compute_vertex_normals,
-    uv_coverage,
     weld_points,
 )
+from geoscaler.uvmaps import uv_coverage
 
 
 def test_with_texture_returns_an_edited_copy():
@@ -41,6 +41,32 @@ def test_with_texture_returns_an_edited_copy():
         mesh.with_texture(2, small)
     with pytest.raises(ValueError, match="uvs"):
         mesh.with_texture(0, small, uvs[:2])
+
+
+def test_with_uvs_splits_a_vertex_only_where_its_corners_disagree():
+    mesh = two_material_mesh()
+    mesh.attributes = {"COLOR_0": np.arange(18, dtype=np.float32).reshape(6, 3) / 18}
+    same = mesh.with_uvs(mesh.corner_uvs())  # corners that agree: the same vertices
+    np.testing.assert_array_equal(same.faces, mesh.faces)
+    np.testing.assert_array_equal(same.uvs, mesh.uvs)
+    corners = mesh.corner_uvs()
+    corners[1] += 0.25  # face 1 (vertices 0, 2, 3) moves: vertices 0 and 2 split
+    cut = mesh.with_uvs(corners)
+    assert len(cut.uvs) == len(mesh.uvs) + 2
+    np.testing.assert_array_equal(cut.corner_uvs(), corners)
+    np.testing.assert_array_equal(cut.positions[cut.faces], mesh.positions[mesh.faces])
+    np.testing.assert_array_equal(cut.vertex_to_point[cut.faces], mesh.vertex_to_point[mesh.faces])
+    np.testing.assert_array_equal(cut.attributes["COLOR_0"][6:], mesh.attributes["COLOR_0"][[0, 2]])
+    np.testing.assert_array_equal(cut.faces[[0, 2, 3]], mesh.faces[[0, 2, 3]])  # kept in place
+    cut.validate()
+    with pytest.raises(ValueError, match="per face corner"):
+        mesh.with_uvs(np.zeros((4, 2, 2)))
+
+
+def test_vertex_uvs_are_the_corner_uvs_of_each_face():
+    mesh = ribbon_mesh(quads=2)
+    np.testing.assert_array_equal(mesh.corner_uvs(), mesh.uvs[mesh.faces])
+    np.testing.assert_array_equal(mesh.with_uvs(mesh.uvs * 2).uvs, mesh.uvs * 2)
 
 
 def test_check_texture_is_one_check_with_one_message():

@@ -116,3 +116,18 @@ def test_demo_asset_renders_deterministically_with_multi_chart_uvs():
     second = renderer.render(renderer.rasterize(camera), renderer.reference_textures())
     assert torch.equal(first, second)
     assert renderer.foreground(renderer.rasterize(camera)).float().mean() > 0.3
+
+
+def test_a_layout_given_per_face_corner_renders_as_per_vertex_uvs_do():
+    mesh = demo_mesh(subdivisions=4, texture_size=64)
+    renderer = Renderer(mesh, "cpu", Evaluation(image_size=32))
+    gbuffer = renderer.rasterize(validation_cameras()[2])
+    textures = renderer.reference_textures()
+    moved = renderer.uvs * 0.5 + 0.25
+    corners = moved[renderer.faces]  # (F, 3, 2): a cut layout's form
+    assert torch.equal(
+        renderer.render(gbuffer, textures, corners), renderer.render(gbuffer, textures, moved)
+    )
+    relaid = renderer.relaid(corners.numpy())
+    assert len(relaid.mesh.uvs) == len(mesh.uvs)  # corners that agree split no vertex
+    assert torch.equal(relaid.render(gbuffer, textures), renderer.render(gbuffer, textures, moved))

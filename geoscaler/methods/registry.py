@@ -83,7 +83,9 @@ class MethodResult:
 
     Attributes:
         textures: per material, the ``(h, w, C)`` uint8 sRGB texture (None if untextured).
-        uvs: ``(V, 2)`` float32 new UVs, or None when the method keeps the mesh's own.
+        uvs: float32 new UVs, ``(V, 2)`` per vertex (a warp) or ``(F, 3, 2)`` per face
+            corner (a new layout, :attr:`Atlas.uvs`), or None when the method keeps the
+            mesh's own; :meth:`TexturedMesh.with_uvs` makes the mesh that ships.
         seconds: wall-clock time of the method (the job adds what it spent for it).
         details: method-specific facts for the report (steps run, device, ...).
         layout: the new UV layout when the method repacked the charts (``uvs`` are its UVs;

@@ -4,11 +4,12 @@ The charts are repacked by the texels the training views ask of them
 (:func:`geoscaler.atlas.repack`, planned on the G-buffers of the first training views), the
 reference maps are baked into the new layout (:func:`geoscaler.bake.bake`), and the texels are
 optimised through the renderer as ``direct`` does. References are always the original maps on
-the original UVs: the new layout has the same vertices, faces and 3D positions, so every
-G-buffer (and foreground mask) is the original's, and the job's validation views are shared
-(:class:`LayoutValidation`). The result carries the new UVs and the :class:`Atlas`, which the
-export needs to bake every other map of the repacked materials. ``--uv auto`` races the two
-layouts on that shared validation (:func:`raced`).
+the original UVs: the new layout has the same faces, in the same order, and every corner its
+3D position (UVs are given per face corner, so a cut chart's seam is two UVs of one vertex),
+so every G-buffer (and foreground mask) is the original's, and the job's validation views are
+shared (:class:`LayoutValidation`). The result carries the new UVs and the :class:`Atlas`,
+which the export needs to bake every other map of the repacked materials. ``--uv auto`` races
+the two layouts on that shared validation (:func:`raced`).
 """
 
 from __future__ import annotations
@@ -123,9 +124,7 @@ def baked_maps(
     out: list[np.ndarray | None] = [None] * len(mesh.materials)
     for group, padding in zip(atlas.groups, atlas.paddings, strict=True):
         faces = np.isin(mesh.face_material, group) & (atlas.chart_of_face >= 0)
-        layout = ChartMaps(
-            atlas.uvs, mesh.faces[faces], atlas.chart_of_face[faces], atlas.linear, atlas.offset
-        )
+        layout = ChartMaps(atlas.uvs[faces], atlas.chart_of_face[faces], atlas.linear, atlas.offset)
         size = sizes[group[0]][0]
         reference = references[group[0]]
         oversample = int(np.clip(reference.shape[0] // size, 1, MAX_OVERSAMPLE))
