@@ -34,8 +34,14 @@ import torch
 
 from geoscaler.cameras import sample_extent
 from geoscaler.mesh import TexturedMesh
-from geoscaler.packing import SCALE_TOLERANCE, Charts, PackingError, corner_areas, pack
-from geoscaler.packing import signed_areas as uv_areas
+from geoscaler.packing import (
+    SCALE_TOLERANCE,
+    Charts,
+    PackingError,
+    corner_areas,
+    pack,
+    signed_areas,
+)
 from geoscaler.protocol import FAR_DISTANCE
 from geoscaler.uvmaps import (
     GRAZING_STRETCH,
@@ -224,6 +230,10 @@ def chart_footprint(charts: np.ndarray, tri_ids: Sequence[torch.Tensor]) -> np.n
     return np.bincount(charts, weights=samples, minlength=int(charts.max(initial=-1)) + 1)
 
 
+uv_areas = signed_areas
+"""``(F,)`` signed UV area of each face (:func:`geoscaler.packing.signed_areas`)."""
+
+
 def planned_scales(footprint: np.ndarray, chart_area: np.ndarray) -> np.ndarray:
     """``(C,)`` relative linear scale of each chart: ``sqrt(footprint / UV area)``, so that
     every chart gets texels in proportion to its screen samples; at least
@@ -316,9 +326,9 @@ def repack(
     atlas = whole
     if facts["charts_cut"]:
         pieces = cut_charts(mesh, charts, longest)
-        needs = {group: CUT_GAIN * k for group, k in group_gains(mesh, whole).items()}
-        cut = plan_charts(mesh, sizes, pieces, tri_ids, samples_per_side, max_scale, needs)
-        if cut.groups == whole.groups and cut.facts["k"] >= CUT_GAIN * whole.facts["k"]:
+        cut = plan_charts(mesh, sizes, pieces, tri_ids, samples_per_side, max_scale)
+        facts["k_cut"] = cut.facts["k"]
+        if cut.facts["k"] >= CUT_GAIN * whole.facts["k"]:
             atlas = cut
     facts["cut"] = atlas is not whole
     facts["vertices_added"] = len(mesh.with_uvs(atlas.uvs).uvs) - len(mesh.uvs)
@@ -347,11 +357,9 @@ def plan_charts(
     tri_ids: Sequence[torch.Tensor],
     samples_per_side: int,
     max_scale: float | None,
-    needs: dict[tuple[int, ...], float] | None = None,
 ) -> Atlas:
     """The layout of ``charts`` (``(F,)`` labels, each chart moved whole) as :func:`repack`
-    plans it; ``needs``: per group (its materials) the least ``k`` worth packing it at (a
-    group that does not reach it keeps its layout, and the search spends nothing below it)."""
+    plans it."""
     groups, kept = layout_groups(mesh, sizes, charts)
     count = int(charts.max()) + 1 if len(charts) else 0
     chart_area = np.bincount(charts, np.abs(uv_areas(mesh.uvs, mesh.faces)), minlength=count)
@@ -370,8 +378,7 @@ def plan_charts(
     )
     for materials in groups:
         try:
-            need = (needs or {}).get(tuple(materials))
-            _lay_out(mesh, atlas, materials, charts, chart_area, samples_per_side, max_scale, need)
+            _lay_out(mesh, atlas, materials, charts, chart_area, samples_per_side, max_scale)
         except PackingError as error:  # AtlasError included: that group keeps its layout
             kept.update({m: str(error) for m in materials})
     atlas.kept = {mesh.materials[i].name: reason for i, reason in sorted(kept.items())}
@@ -388,25 +395,20 @@ def _lay_out(
     chart_area: np.ndarray,
     samples_per_side: int,
     max_scale: float | None,
-    need: float | None = None,
 ) -> None:
     """Pack the charts of ``materials`` into ``atlas`` (in place), or leave ``atlas`` as it
-    was and raise :class:`~geoscaler.packing.PackingError` when they do not fit (at ``k`` at
-    least ``need``, when given) or break a guard."""
+    was and raise :class:`~geoscaler.packing.PackingError` when they do not fit or break a
+    guard."""
     faces, group, ids, shift = group_charts(mesh, materials, charts)
     size = atlas.sizes[materials[0]][0]
     padding = padding_for(mesh, mesh.faces[faces], (size, size), samples_per_side)
     rotate = not has_normal_map(mesh, materials)
     scales = planned_scales(atlas.footprint[ids], chart_area[ids])
-
-    def least(scales: np.ndarray) -> float | None:  # the density at which k is need
-        return None if need is None else need * size / weighted_gain(scales, atlas.footprint[ids])
-
-    packed = pack(group, scales, size, padding + PACKER_MARGIN, rotate, least(scales))
+    packed = pack(group, scales, size, padding + PACKER_MARGIN, rotate)
     tpu = packed.texels_per_unit
     if max_scale is not None and (scales * tpu / size > max_scale).any():
         scales = np.minimum(scales, max_scale * size / tpu)
-        packed = pack(group, scales, size, padding + PACKER_MARGIN, rotate, least(scales))
+        packed = pack(group, scales, size, padding + PACKER_MARGIN, rotate)
     before = copy.deepcopy(atlas)
     atlas.planned[ids] = scales * packed.texels_per_unit / size
     atlas.linear[ids] = packed.linear
@@ -433,16 +435,6 @@ def chart_boxes(
         np.minimum.at(low[:, axis], charts, corners[..., axis].min(axis=1))
         np.maximum.at(high[:, axis], charts, corners[..., axis].max(axis=1))
     return low, high - low
-
-
-def group_gains(mesh: TexturedMesh, atlas: Atlas) -> dict[tuple[int, ...], float]:
-    """Per group of ``atlas`` (its materials) its ``k`` (:func:`layout_facts`)."""
-    gains = {}
-    for materials in atlas.groups:
-        faces = np.isin(mesh.face_material, materials) & (atlas.chart_of_face >= 0)
-        ids = np.unique(atlas.chart_of_face[faces])
-        gains[tuple(materials)] = weighted_gain(atlas.scales[ids], atlas.footprint[ids])
-    return gains
 
 
 def weighted_gain(scales: np.ndarray, weights: np.ndarray) -> float:

@@ -363,4 +363,4 @@ def _cut_line(layout: dict[str, Any]) -> str:
             f"  {charts} cut along face edges (x{layout['k_whole']:.2f} whole): "
             f"{layout['vertices_added']} vertices added on the cuts"
         )
-    return f"  {charts} kept whole: cut, they did not pack 1.1 times as densely"
+    return f"  {charts} kept whole: cut, they reached x{layout['k_cut']:.2f}, too little more"
