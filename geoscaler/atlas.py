@@ -328,8 +328,8 @@ def repack(
         pieces = cut_charts(mesh, charts, longest)
         cut = plan_charts(mesh, sizes, pieces, tri_ids, samples_per_side, max_scale)
         facts["k_cut"] = cut.facts["k"]
-        if cut.facts["k"] >= CUT_GAIN * whole.facts["k"]:
-            atlas = cut
+        if cut.groups == whole.groups and cut.facts["k"] >= CUT_GAIN * whole.facts["k"]:
+            atlas = cut  # (a group the cut plan could not pack would make k incomparable)
     facts["cut"] = atlas is not whole
     facts["vertices_added"] = len(mesh.with_uvs(atlas.uvs).uvs) - len(mesh.uvs)
     atlas.facts.update(facts)

@@ -363,4 +363,7 @@ def _cut_line(layout: dict[str, Any]) -> str:
             f"  {charts} cut along face edges (x{layout['k_whole']:.2f} whole): "
             f"{layout['vertices_added']} vertices added on the cuts"
         )
-    return f"  {charts} kept whole: cut, they reached x{layout['k_cut']:.2f}, too little more"
+    return (
+        f"  {charts} kept whole: cut, x{layout['k_cut']:.2f}, not 1.1 times "
+        f"x{layout['k_whole']:.2f}"
+    )

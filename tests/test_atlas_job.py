@@ -254,5 +254,5 @@ def test_the_report_says_what_happened_to_the_layout():
     )
     whole = {**cut, "charts_cut": 1, "cut": False, "k_cut": 1.05}
     assert _layout_lines("direct", {**repacked, "layout": whole})[1] == (
-        "  1 chart longer than half the atlas kept whole: cut, they reached x1.05, too little more"
+        "  1 chart longer than half the atlas kept whole: cut, x1.05, not 1.1 times x1.02"
     )
