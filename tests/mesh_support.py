@@ -145,6 +145,28 @@ def assert_same_mesh(a: TexturedMesh, b: TexturedMesh) -> None:
             np.testing.assert_array_equal(ma.base_color_texture, mb.base_color_texture)
 
 
+def mesh_of(
+    positions: np.ndarray,
+    faces: np.ndarray,
+    uvs: np.ndarray,
+    face_material: np.ndarray,
+    materials: list[Material],
+    vertex_to_point: np.ndarray | None = None,
+) -> TexturedMesh:
+    """A mesh of these arrays, its vertex normals computed (points welded by position unless
+    ``vertex_to_point`` is given)."""
+    points = weld_points(positions) if vertex_to_point is None else vertex_to_point
+    return TexturedMesh(
+        positions=positions,
+        faces=faces,
+        uvs=uvs,
+        normals=compute_vertex_normals(positions, faces, points),
+        vertex_to_point=points,
+        face_material=np.asarray(face_material),
+        materials=materials,
+    )
+
+
 def two_material_mesh() -> TexturedMesh:
     """Two quads sharing an edge: one textured, one plain colour (factor only)."""
     positions = np.array(
@@ -152,19 +174,11 @@ def two_material_mesh() -> TexturedMesh:
     )
     uvs = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [0.5, 0.5], [0.5, 0.5]], dtype=np.float32)
     faces = np.array([[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2]], dtype=np.int64)
-    vertex_to_point = weld_points(positions)
-    return TexturedMesh(
-        positions=positions,
-        faces=faces,
-        uvs=uvs,
-        normals=compute_vertex_normals(positions, faces, vertex_to_point),
-        vertex_to_point=vertex_to_point,
-        face_material=np.array([0, 0, 1, 1]),
-        materials=[
-            Material("painted", TEXTURE),
-            Material("plain", None, np.array([0.2, 0.4, 0.6, 1.0], dtype=np.float32)),
-        ],
-    )
+    materials = [
+        Material("painted", TEXTURE),
+        Material("plain", None, np.array([0.2, 0.4, 0.6, 1.0], dtype=np.float32)),
+    ]
+    return mesh_of(positions, faces, uvs, np.array([0, 0, 1, 1]), materials)
 
 
 def signed_volume(mesh: TexturedMesh) -> float:
@@ -213,15 +227,8 @@ def ribbon_mesh(quads: int = 16, texture_size: int = 128) -> TexturedMesh:
     uvs = np.stack([0.05 + 0.9 * x / quads, 0.45 + 0.1 * y], axis=1).astype(np.float32)
     first = 2 * np.arange(quads)[:, None]
     faces = np.concatenate([first + [0, 2, 3], first + [0, 3, 1]]).astype(np.int64)
-    vertex_to_point = np.arange(len(positions))
     rng = np.random.default_rng(3)
     texture = rng.integers(0, 256, (texture_size, texture_size, 3), dtype=np.uint8)
-    return TexturedMesh(
-        positions=positions,
-        faces=faces,
-        uvs=uvs,
-        normals=compute_vertex_normals(positions, faces, vertex_to_point),
-        vertex_to_point=vertex_to_point,
-        face_material=np.zeros(len(faces), np.int64),
-        materials=[Material("ribbon", texture)],
+    return mesh_of(
+        positions, faces, uvs, np.zeros(len(faces), np.int64), [Material("ribbon", texture)]
     )

@@ -6,10 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from mesh_support import mesh_of
 
 from geoscaler.errors import GeoscalerError
 from geoscaler.maps import METHOD_NAMES
-from geoscaler.mesh import Material, SourceImage, TexturedMesh, compute_vertex_normals, weld_points
+from geoscaler.mesh import Material, SourceImage, TexturedMesh
 from geoscaler.methods import MethodOptions, RunContext, run_method
 from geoscaler.protocol import Evaluation
 from geoscaler.render import Renderer
@@ -49,16 +50,7 @@ def shared_pbr_mesh() -> TexturedMesh:
         sources={**sources, "metallicRoughnessTexture": _source(rough, "rough")},
     )
     second = Material("right", base, maps={"normalTexture": normal}, sources=dict(sources))
-    points = weld_points(positions)
-    return TexturedMesh(
-        positions=positions,
-        faces=faces,
-        uvs=uvs,
-        normals=compute_vertex_normals(positions, faces, points),
-        vertex_to_point=points,
-        face_material=np.array([0, 0, 1, 1]),
-        materials=[first, second],
-    )
+    return mesh_of(positions, faces, uvs, np.array([0, 0, 1, 1]), [first, second])
 
 
 def test_every_map_ships_at_its_class_size_and_shared_maps_stay_shared():
