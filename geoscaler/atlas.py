@@ -39,6 +39,7 @@ from geoscaler.packing import (
     Charts,
     PackingError,
     corner_areas,
+    label_boxes,
     pack,
     signed_areas,
 )
@@ -429,12 +430,8 @@ def chart_boxes(
 ) -> tuple[np.ndarray, np.ndarray]:
     """``((C, 2) low corner, (C, 2) extent)`` float64 of each chart's UV bounding box in UV
     units; ``charts`` is ``(F,)`` (:func:`~geoscaler.uvmaps.chart_labels`), ``count`` >= C."""
-    corners = mesh.uvs[mesh.faces].astype(np.float64)  # (F, 3, 2)
-    low, high = np.full((count, 2), np.inf), np.full((count, 2), -np.inf)
-    for axis in range(2):
-        np.minimum.at(low[:, axis], charts, corners[..., axis].min(axis=1))
-        np.maximum.at(high[:, axis], charts, corners[..., axis].max(axis=1))
-    return low, high - low
+    corners = mesh.corner_uvs().astype(np.float64).reshape(-1, 2)
+    return label_boxes(corners, np.repeat(charts, 3), count)
 
 
 def weighted_gain(scales: np.ndarray, weights: np.ndarray) -> float:

@@ -84,12 +84,20 @@ class Charts:
 
     def extents(self) -> tuple[np.ndarray, np.ndarray]:
         """``((C, 2) low corner, (C, 2) extent)`` of each chart's UV bounding box."""
-        low = np.full((self.count, 2), np.inf)
-        high = np.full((self.count, 2), -np.inf)
-        for axis in range(2):
-            np.minimum.at(low[:, axis], self.corner_chart, self.corner_uvs[:, axis])
-            np.maximum.at(high[:, axis], self.corner_chart, self.corner_uvs[:, axis])
-        return low, high - low
+        return label_boxes(self.corner_uvs, self.corner_chart, self.count)
+
+
+def label_boxes(
+    points: np.ndarray, labels: np.ndarray, count: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """``((count, 2) low corner, (count, 2) extent)`` float64 of the bounding box of the
+    ``(N, 2)`` points of each of ``count`` labels (``labels`` ``(N,)``; an unused label's low
+    corner is ``inf``)."""
+    low, high = np.full((count, 2), np.inf), np.full((count, 2), -np.inf)
+    for axis in range(2):
+        np.minimum.at(low[:, axis], labels, points[:, axis])
+        np.maximum.at(high[:, axis], labels, points[:, axis])
+    return low, high - low
 
 
 @dataclass
