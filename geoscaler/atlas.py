@@ -18,14 +18,16 @@ tangent frames keep their directions where charts do not turn.
 
 Materials showing one base-colour image are packed together; a material keeps its layout,
 with the reason, where the new layout cannot be right for it (:func:`layout_groups`).
-:func:`check_atlas` holds every layout to the guards: no overlap of charts, no flipped face,
-each chart's scale as planned, padding as planned.
+:func:`group_problems` holds each group's layout to the guards as it is packed (a group that
+breaks one keeps its layout): no overlap of charts, no flipped face, each chart's scale as
+planned, padding as planned.
 """
 
 from __future__ import annotations
 
 import copy
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -300,6 +302,7 @@ def repack(
     tri_ids: Sequence[torch.Tensor],
     samples_per_side: int,
     max_scale: float | None = None,
+    deadline: float | None = None,
 ) -> Atlas:
     """The new layout of ``mesh`` for textures of ``sizes`` (per material), charts scaled by
     what some views (the training views, never the validation's) show of them.
@@ -308,6 +311,7 @@ def repack(
     :data:`CUT_SIDE` of its atlas, those charts are cut (:func:`geoscaler.uvmaps.cut_charts`)
     into pieces at most that long at the first packing's scales and packed again, and the
     cut layout is taken where its ``k`` is at least :data:`CUT_GAIN` times the whole charts'.
+    The cut is not planned where, at the whole plan's cost, it would end past ``deadline``.
 
     Args:
         mesh: the mesh.
@@ -316,18 +320,25 @@ def repack(
         samples_per_side: the renderer's samples per side (for the padding).
         max_scale: the most texels of the new texture per texel of the old one at the same
             size (the original's detail ends there: its size over the output's); None: no cap.
+        deadline: ``time.perf_counter()`` by which the plan must be made (None: no limit):
+            the packing's search stops there (:func:`~geoscaler.packing.pack`).
 
     Returns:
-        The :class:`Atlas`, its guards checked (:func:`check_atlas`).
+        The :class:`Atlas`, each packed group's guards checked (:func:`group_problems`).
     """
     charts = chart_labels(mesh)
-    whole = plan_charts(mesh, sizes, charts, tri_ids, samples_per_side, max_scale)
+    started = time.perf_counter()
+    whole = plan_charts(mesh, sizes, charts, tri_ids, samples_per_side, max_scale, deadline)
     longest = cut_lengths(mesh, whole, charts)
     facts = {"charts_cut": int(np.isfinite(longest).sum()), "k_whole": whole.facts["k"]}
     atlas = whole
-    if facts["charts_cut"]:
+    seconds = time.perf_counter() - started  # what the cut's plan costs too, about
+    late = deadline is not None and time.perf_counter() + seconds > deadline
+    if facts["charts_cut"] and late:
+        facts["cut_skipped"] = "the time budget left no time to plan the cut"
+    elif facts["charts_cut"]:
         pieces = cut_charts(mesh, charts, longest)
-        cut = plan_charts(mesh, sizes, pieces, tri_ids, samples_per_side, max_scale)
+        cut = plan_charts(mesh, sizes, pieces, tri_ids, samples_per_side, max_scale, deadline)
         facts["k_cut"] = cut.facts["k"]
         if cut.groups == whole.groups and cut.facts["k"] >= CUT_GAIN * whole.facts["k"]:
             atlas = cut  # (a group the cut plan could not pack would make k incomparable)
@@ -358,9 +369,10 @@ def plan_charts(
     tri_ids: Sequence[torch.Tensor],
     samples_per_side: int,
     max_scale: float | None,
+    deadline: float | None = None,
 ) -> Atlas:
     """The layout of ``charts`` (``(F,)`` labels, each chart moved whole) as :func:`repack`
-    plans it."""
+    plans it, by ``deadline`` (:func:`~geoscaler.packing.pack`)."""
     groups, kept = layout_groups(mesh, sizes, charts)
     count = int(charts.max()) + 1 if len(charts) else 0
     chart_area = np.bincount(charts, np.abs(uv_areas(mesh.uvs, mesh.faces)), minlength=count)
@@ -379,12 +391,13 @@ def plan_charts(
     )
     for materials in groups:
         try:
-            _lay_out(mesh, atlas, materials, charts, chart_area, samples_per_side, max_scale)
+            _lay_out(
+                mesh, atlas, materials, charts, chart_area, samples_per_side, max_scale, deadline
+            )
         except PackingError as error:  # AtlasError included: that group keeps its layout
             kept.update({m: str(error) for m in materials})
     atlas.kept = {mesh.materials[i].name: reason for i, reason in sorted(kept.items())}
     atlas.facts = layout_facts(mesh, atlas, charts, chart_area)
-    check_atlas(mesh, atlas)
     return atlas
 
 
@@ -396,20 +409,21 @@ def _lay_out(
     chart_area: np.ndarray,
     samples_per_side: int,
     max_scale: float | None,
+    deadline: float | None,
 ) -> None:
-    """Pack the charts of ``materials`` into ``atlas`` (in place), or leave ``atlas`` as it
-    was and raise :class:`~geoscaler.packing.PackingError` when they do not fit or break a
-    guard."""
+    """Pack the charts of ``materials`` into ``atlas`` (in place) by ``deadline``, or leave
+    ``atlas`` as it was and raise :class:`~geoscaler.packing.PackingError` when they do not
+    fit, break a guard or found no packing in time."""
     faces, group, ids, shift = group_charts(mesh, materials, charts)
     size = atlas.sizes[materials[0]][0]
     padding = padding_for(mesh, mesh.faces[faces], (size, size), samples_per_side)
     rotate = not has_normal_map(mesh, materials)
     scales = planned_scales(atlas.footprint[ids], chart_area[ids])
-    packed = pack(group, scales, size, padding + PACKER_MARGIN, rotate)
+    packed = pack(group, scales, size, padding + PACKER_MARGIN, rotate, deadline)
     tpu = packed.texels_per_unit
     if max_scale is not None and (scales * tpu / size > max_scale).any():
         scales = np.minimum(scales, max_scale * size / tpu)
-        packed = pack(group, scales, size, padding + PACKER_MARGIN, rotate)
+        packed = pack(group, scales, size, padding + PACKER_MARGIN, rotate, deadline)
     before = copy.deepcopy(atlas)
     atlas.planned[ids] = scales * packed.texels_per_unit / size
     atlas.linear[ids] = packed.linear
@@ -500,8 +514,9 @@ def chart_texels(
     inside = (sides >= -scale).all(axis=1) | (sides <= scale).all(axis=1)
     col = np.mod(np.floor(x[inside] / supersample).astype(np.int64), size)
     row = np.mod(np.floor(y[inside] / supersample).astype(np.int64), size)
-    pairs = np.unique(np.stack([row * size + col, labels[face[inside]]], axis=1), axis=0)
-    return pairs[:, 0], pairs[:, 1]
+    count = int(labels.max(initial=0)) + 1
+    keys = np.unique((row * size + col) * count + labels[face[inside]])  # by texel, then label
+    return keys // count, keys % count
 
 
 def overlapping_texels(texels: np.ndarray, labels: np.ndarray) -> np.ndarray:
@@ -578,10 +593,3 @@ def map_pieces(atlas: Atlas) -> np.ndarray:
     guards compare pieces, not charts."""
     keys = np.c_[np.round(atlas.linear.reshape(-1, 4), 9), np.round(atlas.offset, 6)]
     return np.unique(keys, axis=0, return_inverse=True)[1].reshape(-1)
-
-
-def check_atlas(mesh: TexturedMesh, atlas: Atlas) -> None:
-    """Raise :class:`AtlasError` naming every guard ``atlas`` breaks (:func:`atlas_problems`)."""
-    problems = atlas_problems(mesh, atlas)
-    if problems:
-        raise AtlasError("the new UV layout is wrong: " + "; ".join(problems))

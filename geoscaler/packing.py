@@ -286,14 +286,23 @@ def _place(
     return Packed(linear, offset, tpu, boxes.copy()), boxes
 
 
-def pack(charts: Charts, scales: np.ndarray, size: int, padding: int, rotate: bool) -> Packed:
+def pack(
+    charts: Charts,
+    scales: np.ndarray,
+    size: int,
+    padding: int,
+    rotate: bool,
+    deadline: float | None = None,
+) -> Packed:
     """The densest packing of ``charts``, each scaled by ``scales`` ``(C,)``, into one
     ``size x size`` atlas with ``padding`` texels between charts; charts turn by multiples of
     90 degrees or transpose only where ``rotate``. Deterministic: the same input gives the
-    same output.
+    same output, unless the search is stopped by ``deadline`` (``time.perf_counter()``; None:
+    never): past it no further density is tried, and the densest found so far is returned.
 
     Raises:
-        PackingError: not even a sparse packing holds the charts at their planned scales.
+        PackingError: not even a sparse packing holds the charts at their planned scales, or
+            none was found by ``deadline``.
     """
     if 2 * padding >= size:
         raise PackingError(f"a padding of {padding} texels leaves no room in {size}x{size}")
@@ -305,18 +314,28 @@ def pack(charts: Charts, scales: np.ndarray, size: int, padding: int, rotate: bo
     high = size / math.sqrt(max(area, 1e-30))  # every texel used
     low, best = high / 16, None
     boxes = folded_charts(charts)
+
+    def late() -> bool:
+        return deadline is not None and time.perf_counter() > deadline
+
     for _ in range(SEARCH_STEPS):
+        if late():
+            break
         middle = math.sqrt(low * high)
         packed, boxes = _place(charts, scales, size, middle, padding, rotate, boxes)
         if packed is not None:
             low, best = middle, packed
         else:
             high = middle
+    if best is None and late():
+        raise PackingError("the time budget left no time to pack the UV charts")
     if best is None:
         raise PackingError(
             f"the UV charts do not fit one {size}x{size} atlas at their planned scales"
         )
     for factor in PROBES:
+        if late():
+            break
         packed, boxes = _place(
             charts, scales, size, best.texels_per_unit * factor, padding, rotate, boxes
         )

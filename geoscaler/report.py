@@ -323,10 +323,12 @@ LAYOUT_NAMES = {"keep": "own layout", "repack": "repacked"}
 def _layout_lines(method: str, details: dict[str, Any]) -> list[str]:
     """What ``--uv repack`` / ``auto`` did with the UV layout (nothing for ``keep``)."""
     layout = details.get("layout")
+    line = f"UV layout ({details.get('uv')}): "
+    if "layout_skipped" in details:
+        return [line + f"the mesh's own layout kept: {details['layout_skipped']}"]
     if not layout:
         return []
     used = details.get("layout_used", "keep")
-    line = f"UV layout ({details.get('uv')}): "
     if used == "repack" and details.get("shipped", method) == method:
         line += (
             f"{layout['charts']} charts repacked, texel density x{layout['k']:.2f} where the "
@@ -363,6 +365,8 @@ def _cut_line(layout: dict[str, Any]) -> str:
             f"  {charts} cut along face edges (x{layout['k_whole']:.2f} whole): "
             f"{layout['vertices_added']} vertices added on the cuts"
         )
+    if "cut_skipped" in layout:
+        return f"  {charts} kept whole: {layout['cut_skipped']}"
     return (
         f"  {charts} kept whole: cut, x{layout['k_cut']:.2f}, not 1.1 times "
         f"x{layout['k_whole']:.2f}"

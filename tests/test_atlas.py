@@ -3,13 +3,16 @@ the guards, and the bake into the new layout."""
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
 from mesh_support import ribbon_mesh
 
+from geoscaler import atlas as atlas_module
 from geoscaler import packing
 from geoscaler.atlas import (
     CUT_GAIN,
@@ -211,6 +214,41 @@ def test_densities_above_the_bisections_answer_are_tried(monkeypatch):
     monkeypatch.setattr(packing, "_place", place)
     packed = pack(charts, np.ones(1), 32, 1, rotate=False)
     assert 0.55 * every_texel <= packed.texels_per_unit < 0.6 * every_texel
+
+
+def test_the_packing_search_stops_at_its_deadline(monkeypatch):
+    # past the deadline no density is tried: the densest found so far packs; none: refused
+    uvs = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float64)
+    charts = Charts(np.array([[0, 1, 2], [0, 2, 3]]), uvs, np.zeros(4, np.int64), 1)
+    tried = []
+
+    def place(charts, scales, size, tpu, padding, rotate, boxes):
+        tried.append(tpu)
+        found = packing.Packed(np.eye(2)[None] * tpu / size, np.zeros((1, 2)), tpu, boxes)
+        return (found if tpu < 16.0 else None), boxes  # half the all-texels density, 32
+
+    monkeypatch.setattr(packing, "_place", place)
+    clock = iter(range(1, 100))  # one second a look at the clock
+    monkeypatch.setattr(packing.time, "perf_counter", lambda: next(clock))
+    packed = pack(charts, np.ones(1), 32, 1, rotate=False, deadline=3.5)
+    assert tried == pytest.approx([8.0, 16.0, 8.0 * 2**0.5])  # three looks before 3.5 s
+    assert packed.texels_per_unit == pytest.approx(8.0 * 2**0.5)
+    tried.clear()
+    with pytest.raises(PackingError, match="time budget"):
+        pack(charts, np.ones(1), 32, 1, rotate=False, deadline=0.5)
+    assert tried == []
+
+
+def test_the_cut_is_not_planned_where_it_would_end_past_the_deadline(monkeypatch):
+    ribbon = ribbon_mesh(quads=16)  # cut where there is time (above)
+    every_face = [torch.arange(len(ribbon.faces))]
+    start = time.perf_counter()
+    clock = iter([start, start + 600.0, start + 600.0])  # the whole plan takes 600 s
+    monkeypatch.setattr(atlas_module, "time", SimpleNamespace(perf_counter=lambda: next(clock)))
+    atlas = repack(ribbon, [(SIZE, SIZE)], every_face, 256, deadline=start + 1000.0)
+    assert atlas.facts["charts_cut"] == 1 and not atlas.facts["cut"]
+    assert atlas.facts["cut_skipped"] == "the time budget left no time to plan the cut"
+    assert "k_cut" not in atlas.facts and atlas.facts["k"] == atlas.facts["k_whole"]
 
 
 def test_normal_mapped_charts_never_turn_or_mirror():

@@ -107,6 +107,38 @@ def test_a_new_layouts_validation_prices_the_taps_it_has_still_to_find(cube):
     )
 
 
+def test_a_budget_without_time_to_plan_and_bake_keeps_the_own_layout(cube):
+    from geoscaler.render import Renderer
+
+    context = RunContext(Renderer(cube, "cpu", QUICK), time_budget=0.05)
+    result = run_method("direct", cube, 4, options("auto"), context)
+    assert result.details["layout_used"] == "keep" and result.uvs is None
+    assert result.details["layout_skipped"] == (
+        "the time budget left no time to plan and bake a new layout"
+    )
+    assert "layout" not in result.details and "race" not in result.details
+
+
+def test_the_bake_is_priced_at_a_validation_views_cost_per_sample():
+    from types import SimpleNamespace
+
+    from geoscaler.methods.repacked import bake_seconds
+
+    renderer = SimpleNamespace(image_size=128, supersample=2)  # 256^2 samples a view
+    image = np.zeros((256, 256, 3), np.uint8)
+    # 64^2 texels at 4 samples a side (the original's density): one view's samples
+    assert bake_seconds([(64, 64)], [image], renderer, 0.5) == pytest.approx(0.5)
+    # one image shown by two materials is baked once; an untextured material not at all
+    assert bake_seconds([(64, 64), (64, 64), None], [image, image, None], renderer, 0.5) == (
+        pytest.approx(0.5)
+    )
+    # 128^2 texels: 2 samples a side (the original's density), a view's samples again
+    assert bake_seconds([(128, 128)], [image], renderer, 0.5) == pytest.approx(0.5)
+    # ... or 4 (the most) from a 1024^2 original: 4 times a view's samples
+    large = np.zeros((1024, 1024, 3), np.uint8)
+    assert bake_seconds([(128, 128)], [large], renderer, 0.5) == pytest.approx(2.0)
+
+
 def test_the_job_scores_repack_beside_direct_on_the_same_views(cube):
     from geoscaler.render import Renderer
 
@@ -256,3 +288,11 @@ def test_the_report_says_what_happened_to_the_layout():
     assert _layout_lines("direct", {**repacked, "layout": whole})[1] == (
         "  1 chart longer than half the atlas kept whole: cut, x1.05, not 1.1 times x1.02"
     )
+    late = {**cut, "charts_cut": 1, "cut": False, "cut_skipped": "no time"}
+    assert _layout_lines("direct", {**repacked, "layout": late})[1] == (
+        "  1 chart longer than half the atlas kept whole: no time"
+    )
+    skipped = {"uv": "auto", "layout_used": "keep", "layout_skipped": "no time"}
+    assert _layout_lines("direct", skipped) == [
+        "UV layout (auto): the mesh's own layout kept: no time"
+    ]

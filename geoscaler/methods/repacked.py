@@ -45,6 +45,11 @@ MAX_OVERSAMPLE = 4
 TRIAL_SHARE = 0.2
 """``--uv auto``: the share of the steps, and of the time left, that each layout's trial gets
 before the better one goes on (:func:`raced`)."""
+PREPARING_SHARE = 0.4
+"""Under a time budget, the share of the method's time by which the new layout is planned and
+baked, the rest left to the steps: the packing's search stops there, the cut's plan is not
+made where it would end later (:func:`~geoscaler.atlas.repack`), nor the bake where its
+estimate would (:func:`bake_seconds`: the mesh's own layout goes on)."""
 
 
 class LayoutValidation(Validation):
@@ -99,10 +104,16 @@ class LayoutValidation(Validation):
 
 
 def plan_layout(
-    mesh: TexturedMesh, rule: SizeRule, renderer: Renderer, config: Any, memo: dict
+    mesh: TexturedMesh,
+    rule: SizeRule,
+    renderer: Renderer,
+    config: Any,
+    memo: dict,
+    deadline: float | None = None,
 ) -> Atlas:
     """The new layout for ``rule``'s sizes, planned on the first :data:`FOOTPRINT_VIEWS`
-    training cameras (their G-buffers cached into ``memo`` for the loop)."""
+    training cameras (their G-buffers cached into ``memo`` for the loop) by ``deadline``
+    (``time.perf_counter()``, :func:`~geoscaler.atlas.repack`; None: no limit)."""
     cameras = sample_training_cameras(config.pool_views, config.seed, config.distances)
     views = ViewSet(renderer.relaid(mesh.uvs, memo), cameras[:FOOTPRINT_VIEWS])
     sizes = output_sizes_for(mesh, rule, renderer)
@@ -113,7 +124,7 @@ def plan_layout(
     ]
     cap = max((c for c in caps if c is not None), default=None)
     tri_ids = [gbuffer.tri_ids for gbuffer in views.gbuffers]
-    return repack(mesh, sizes, tri_ids, renderer.resolution, cap)
+    return repack(mesh, sizes, tri_ids, renderer.resolution, cap, deadline)
 
 
 def baked_maps(
@@ -127,11 +138,26 @@ def baked_maps(
         layout = ChartMaps(atlas.uvs[faces], atlas.chart_of_face[faces], atlas.linear, atlas.offset)
         size = sizes[group[0]][0]
         reference = references[group[0]]
-        oversample = int(np.clip(reference.shape[0] // size, 1, MAX_OVERSAMPLE))
-        pixels, _ = bake(reference, COLOR, layout, size, 2 * padding, oversample)
+        pixels, _ = bake(reference, COLOR, layout, size, 2 * padding, oversampling(reference, size))
         for material in group:
             out[material] = pixels
     return out
+
+
+def oversampling(reference: np.ndarray, size: int) -> int:
+    """Samples per side of each new texel when ``reference`` is baked at ``size``."""
+    return int(np.clip(reference.shape[0] // size, 1, MAX_OVERSAMPLE))
+
+
+def bake_seconds(
+    sizes: list, references: list[np.ndarray | None], renderer: Renderer, view_seconds: float
+) -> float:
+    """An estimate of :func:`baked_maps`'s seconds at most (each base-colour image baked
+    once): its samples at the cost per sample of a validation view (``view_seconds``, measured
+    on this machine as it is now), whose render samples the original as the bake does."""
+    images = {id(r): (r, s[0]) for r, s in zip(references, sizes, strict=True) if r is not None}
+    samples = sum((size * oversampling(r, size)) ** 2 for r, size in images.values())
+    return view_seconds * samples / (renderer.image_size * renderer.supersample) ** 2
 
 
 @dataclass
@@ -204,18 +230,33 @@ def repacked_direct(
         raise GeoscalerError("--uv repack and auto train through the exact renderer only")
     mode = check_uv_mode(options.settings.get("uv", "keep"))
     memo: dict = {}  # the planning views' G-buffers serve the training pools too
-    atlas = plan_layout(mesh, rule, renderer, config, memo)
     sizes = output_sizes_for(mesh, rule, renderer)
     validation = context.validation
     if validation is None:
         validation = Validation(validation_view_sets(renderer), sizes)
-    facts: dict[str, Any] = {"uv": mode, "layout": atlas.facts}
+    references = renderer.reference_maps()
+    end = _method_end(config, context, started)
+    planned_by = None  # when the layout must be planned, to leave the bake its time
+    if end is not None:
+        if not validation.view_cost:
+            validation.cache_next()  # prices the bake (the loop would cache it first)
+        baking = bake_seconds(sizes, references, renderer, validation.view_cost)
+        planned_by = started + PREPARING_SHARE * (end - started) - baking
+    facts: dict[str, Any] = {"uv": mode}
+    atlas = None
+    if planned_by is None or time.perf_counter() < planned_by:
+        atlas = plan_layout(mesh, rule, renderer, config, memo, planned_by)
+        facts["layout"] = atlas.facts
     own = Layout(renderer.relaid(mesh.uvs, memo), validation)
-    if not atlas.moved:
+    if atlas is None or (
+        atlas.moved and planned_by is not None and time.perf_counter() > planned_by
+    ):
+        facts["layout_skipped"] = "the time budget left no time to plan and bake a new layout"
+    if atlas is None or not atlas.moved or "layout_skipped" in facts:
         facts["layout_used"] = "keep"
         model = start_model(mesh, rule, own.renderer, None)
         return own.fit(mesh, rule, model, config, context, started, facts)
-    baked = baked_maps(mesh, atlas, renderer.reference_maps(), sizes)
+    baked = baked_maps(mesh, atlas, references, sizes)
     linear = {id(b): texture_to_linear(b, renderer.device) for b in baked if b is not None}
     relaid = renderer.relaid(atlas.uvs, memo)
     new = Layout(
@@ -256,7 +297,7 @@ def raced(
     validated best, with its training pool (growing again) and that best's scores as its
     start's, so what ships is never below the better trial on the validation views.
     """
-    end = None if config.time_budget is None else started + config.time_budget - context.reserve
+    end = _method_end(config, context, started)
     cameras = sample_training_cameras(config.pool_views, config.seed, config.distances)
     race = _Trials(config, context, started, end, cameras)
     for name, layout in layouts.items():
@@ -296,6 +337,14 @@ def raced(
     result.details["steps"] += race.steps
     result.details["first_step_seconds"] = first_step
     return result
+
+
+def _method_end(config: OptimizeConfig, context: RunContext, started: float) -> float | None:
+    """When the method must be done (``time.perf_counter()``; None: no budget): its budget
+    from ``started``, less the job's ``reserve`` after it."""
+    if config.time_budget is None:
+        return None
+    return started + config.time_budget - context.reserve
 
 
 class _Trials:
