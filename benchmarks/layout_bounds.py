@@ -11,8 +11,8 @@ charts, its pieces are its charts; ``k whole`` is what the uncut charts reached)
 Each ``k`` is the footprint-weighted geometric mean over the moved charts of new texels per old
 texel at the same texture size (as the report's ``k``). ``dB`` columns turn them into the
 issue's prediction, bicubic's loss of about 5 dB per halving of the texel density on the
-development set: ``5 log2 k``. Planning only (the job's own :func:`plan_layout` on its first
-training views): no training, a few seconds a mesh.
+development set: ``5 log2 k``. Planning only (the job's own :func:`plan_layout` on its training
+cameras): no training, a few seconds a mesh.
 
 Usage:
     python benchmarks/layout_bounds.py [PATH ...] [--scale 4 8] [--device cpu] [--json OUT]
@@ -80,10 +80,9 @@ def mesh_rows(entry, scales: list[int], device: str) -> list[dict]:
     mesh = load_mesh(entry.path)
     renderer = Renderer(mesh, device)
     config = loop_config(DEFAULT_CONFIG, MethodOptions(device=device), RunContext())
-    memo: dict = {}
     rows = []
     for scale in scales:
-        atlas = plan_layout(mesh, SizeRule(scale=scale), renderer, config, memo)
+        atlas = plan_layout(mesh, SizeRule(scale=scale), renderer, config)
         groups = [group_bounds(mesh, atlas, g) for g in range(len(atlas.groups))]
         if not groups:
             rows.append({"mesh": entry.name, "scale": scale, "kept": atlas.kept})

@@ -49,7 +49,7 @@ def bake_alone(mesh, rule, options: MethodOptions, context: RunContext) -> Metho
     """The new layout and the reference maps baked into it: repack + `direct`'s start."""
     renderer = context.renderer or Renderer(mesh, options.device)
     config = loop_config(DEFAULT_CONFIG, options, RunContext())
-    atlas = plan_layout(mesh, rule, renderer, config, {})
+    atlas = plan_layout(mesh, rule, renderer, config)
     if not atlas.moved:
         return get_method("lanczos").run(mesh, rule, options, context)
     sizes = output_sizes_for(mesh, rule, renderer)

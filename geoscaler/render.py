@@ -111,11 +111,12 @@ class Renderer:
             self._reference = self.mip_textures(self.reference_maps())
         return self._reference
 
-    def rasterize(self, camera: Camera) -> GBuffer:
-        """The G-buffer of one camera at ``resolution x resolution`` samples."""
+    def rasterize(self, camera: Camera, resolution: int | None = None) -> GBuffer:
+        """The G-buffer of one camera at ``resolution`` samples per side (default:
+        :attr:`resolution`)."""
         clip_matrix = torch.from_numpy(camera.clip_matrix()).to(self.device, torch.float64)
         homogeneous = torch.nn.functional.pad(self.positions.to(torch.float64), (0, 1), value=1.0)
-        return rasterize(homogeneous @ clip_matrix.T, self.faces, self.resolution)
+        return rasterize(homogeneous @ clip_matrix.T, self.faces, resolution or self.resolution)
 
     def footprint(self, gbuffer: GBuffer, uvs: torch.Tensor | None = None) -> UVFootprint:
         """Interpolated UVs and their screen derivatives at every covered sample.
