@@ -10,7 +10,7 @@ repacked layout is planned on training views only.
 Usage:
     python benchmarks/repack.py [PATH ...] [--scale 4 8] [--time-budget 60]
         [--methods bicubic direct bake repack auto] [--distance 2.4 [1.5 4.0]]
-        [--device cpu] [--json OUT.json]
+        [--device cpu] [--json OUT.json] [--product]
 
 PATH: mesh files or folders (default: ../shared/data; a missing folder skips cleanly).
 Prints per mesh and scale the PSNR-fg of bicubic on each view set and the gains over it, k
@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from geoscaler.bench import find_meshes
+from geoscaler.downsampling import product_evaluation
 from geoscaler.io import load_mesh
 from geoscaler.job import compare_mesh
 from geoscaler.methods import MethodOptions, MethodResult, RunContext
@@ -37,6 +38,7 @@ from geoscaler.methods.direct import DEFAULT_CONFIG
 from geoscaler.methods.learned import loop_config
 from geoscaler.methods.registry import get_method, output_sizes_for, register
 from geoscaler.methods.repacked import baked_maps, plan_layout
+from geoscaler.protocol import PROTOCOL_EVALUATION
 from geoscaler.render import Renderer
 from geoscaler.sizes import SizeRule
 
@@ -66,11 +68,15 @@ def register_methods() -> None:
         register(mode, direct.run, learned=True, settings={"uv": mode}, steps=direct.steps)
 
 
-def mesh_rows(entry, scales, distances, methods, budget: float, device: str) -> list[dict]:
+def mesh_rows(
+    entry, scales, distances, methods, budget: float, device: str, product: bool = False
+) -> list[dict]:
     """The rows of one mesh (:func:`geoscaler.bench.find_meshes`' entry), one per scale and
-    view set."""
+    view set; ``product``: sizes and references as `geoscaler downsample` has them (the
+    original at full resolution, not the protocol's 2048 cap)."""
     mesh = load_mesh(entry.path)
-    renderer = Renderer(mesh, device)
+    evaluation = product_evaluation(PROTOCOL_EVALUATION) if product else PROTOCOL_EVALUATION
+    renderer = Renderer(mesh, device, evaluation)
     options = MethodOptions(device=device, time_budget=budget)
     started = time.perf_counter()
     comparison = compare_mesh(mesh, scales, methods, distances, options, renderer)
@@ -202,6 +208,9 @@ def main() -> int:
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--json", type=Path)
     parser.add_argument(
+        "--product", action="store_true", help="sizes and references as `downsample` has them"
+    )
+    parser.add_argument(
         "--figures", type=Path, help="only write the reference and new-layout bake side by side"
     )
     args = parser.parse_args()
@@ -218,7 +227,15 @@ def main() -> int:
     for path in find_meshes([p for p in paths if p.exists()]):
         methods = ["bicubic", *(m for m in args.methods if m != "bicubic")]
         rows.extend(
-            mesh_rows(path, args.scale, args.distance, methods, args.time_budget, args.device)
+            mesh_rows(
+                path,
+                args.scale,
+                args.distance,
+                methods,
+                args.time_budget,
+                args.device,
+                args.product,
+            )
         )
         print(table(rows[-len(args.scale) * len(args.distance) :]), flush=True)
         if args.json:

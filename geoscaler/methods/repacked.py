@@ -235,24 +235,11 @@ def repacked_direct(
     if validation is None:
         validation = Validation(validation_view_sets(renderer), sizes)
     references = renderer.reference_maps()
-    end = _method_end(config, context, started)
-    planned_by = None  # when the layout must be planned, to leave the bake its time
-    if end is not None:
-        if not validation.view_cost:
-            validation.cache_next()  # prices the bake (the loop would cache it first)
-        baking = bake_seconds(sizes, references, renderer, validation.view_cost)
-        planned_by = started + PREPARING_SHARE * (end - started) - baking
     facts: dict[str, Any] = {"uv": mode}
-    atlas = None
-    if planned_by is None or time.perf_counter() < planned_by:
-        atlas = plan_layout(mesh, rule, renderer, config, planned_by)
-        facts["layout"] = atlas.facts
+    end = _method_end(config, context, started)
+    atlas = _timely_layout(mesh, rule, renderer, config, validation, started, end, facts)
     own = Layout(renderer.relaid(mesh.uvs, memo), validation)
-    if atlas is None or (
-        atlas.moved and planned_by is not None and time.perf_counter() > planned_by
-    ):
-        facts["layout_skipped"] = "the time budget left no time to plan and bake a new layout"
-    if atlas is None or not atlas.moved or "layout_skipped" in facts:
+    if atlas is None:
         facts["layout_used"] = "keep"
         model = start_model(mesh, rule, own.renderer, None)
         return own.fit(mesh, rule, model, config, context, started, facts)
@@ -337,6 +324,37 @@ def raced(
     result.details["steps"] += race.steps
     result.details["first_step_seconds"] = first_step
     return result
+
+
+def _timely_layout(
+    mesh: TexturedMesh,
+    rule: SizeRule,
+    renderer: Renderer,
+    config: OptimizeConfig,
+    validation: Validation,
+    started: float,
+    end: float | None,
+    facts: dict,
+) -> Atlas | None:
+    """The new layout, planned and baked by :data:`PREPARING_SHARE` of the time from
+    ``started`` to ``end`` (None: no budget), or None where it does not move a chart or there
+    is no time for it (the reason in ``facts["layout_skipped"]``); its facts in
+    ``facts["layout"]``. The bake is priced first (:func:`bake_seconds`), so the plan's
+    deadline leaves it its time."""
+    planned_by = None
+    if end is not None:
+        if not validation.view_cost:
+            validation.cache_next()  # prices the bake (the loop would cache it first)
+        sizes = output_sizes_for(mesh, rule, renderer)
+        baking = bake_seconds(sizes, renderer.reference_maps(), renderer, validation.view_cost)
+        planned_by = started + PREPARING_SHARE * (end - started) - baking
+    if planned_by is None or time.perf_counter() < planned_by:
+        atlas = plan_layout(mesh, rule, renderer, config, planned_by)
+        facts["layout"] = atlas.facts
+        if not atlas.moved or planned_by is None or time.perf_counter() <= planned_by:
+            return atlas if atlas.moved else None
+    facts["layout_skipped"] = "the time budget left no time to plan and bake a new layout"
+    return None
 
 
 def _method_end(config: OptimizeConfig, context: RunContext, started: float) -> float | None:
