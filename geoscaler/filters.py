@@ -330,13 +330,17 @@ def reference_textures(
     definition of "the reference textures" that methods, scores and the app use.
 
     ``max_size``: the protocol's cap (:data:`REFERENCE_MAX_SIZE`) for evaluation; None for
-    the product, which optimises against the full-resolution originals."""
+    the product, which optimises against the full-resolution originals. Materials showing one
+    image share one reference array (reduced once)."""
+    reduced: dict[int, np.ndarray] = {}
+    for material in mesh.materials:
+        image = material.base_color_texture
+        if image is not None and id(image) not in reduced:
+            reduced[id(image)] = image if max_size is None else reference_texture(image, max_size)
     return [
-        None if m.base_color_texture is None
-        else m.base_color_texture if max_size is None
-        else reference_texture(m.base_color_texture, max_size)
+        None if m.base_color_texture is None else reduced[id(m.base_color_texture)]
         for m in mesh.materials
-    ]  # fmt: skip
+    ]
 
 
 def output_sizes(

@@ -50,6 +50,7 @@ class Renderer:
         self.positions, self.faces, self.uvs = tensors.positions, tensors.faces, tensors.uvs
         self.face_material, self.factors = tensors.face_material, tensors.factors
         self._reference: list[MipTexture | None] | None = None
+        self._reference_maps: list[np.ndarray | None] | None = None
         self.original = mesh
         self.reference_uvs: torch.Tensor | None = None
         self.view_memo: dict | None = None
@@ -102,8 +103,12 @@ class Renderer:
     def reference_maps(self) -> list[np.ndarray | None]:
         """Per material the ``(H, W, C)`` uint8 map views of the original are rendered from:
         the original, reduced to the evaluation's ``reference_max_size`` where it is longer
-        (:func:`geoscaler.filters.reference_textures`; None for untextured materials)."""
-        return reference_textures(self.original, self.evaluation.reference_max_size)
+        (:func:`geoscaler.filters.reference_textures`; None for untextured materials), made
+        once per renderer (read only)."""
+        if self._reference_maps is None:
+            maximum = self.evaluation.reference_max_size
+            self._reference_maps = reference_textures(self.original, maximum)
+        return list(self._reference_maps)
 
     def reference_textures(self) -> list[MipTexture | None]:
         """Mip chains of :meth:`reference_maps`, made once per renderer (read only)."""

@@ -15,6 +15,7 @@ from geoscaler.filters import (
     downsample_texture,
     pbd,
     reference_texture,
+    reference_textures,
     target_size,
 )
 
@@ -229,3 +230,16 @@ def test_reference_texture_keeps_aspect_and_channels():
 def test_reference_texture_leaves_smaller_textures_unchanged(height, width):
     texture = _texture(height, width, 3)
     assert reference_texture(texture) is texture
+
+
+def test_materials_showing_one_image_share_one_reference():
+    from types import SimpleNamespace
+
+    image, other = _texture(64, 64, 3), _texture(64, 64, 3, seed=1)
+    materials = [SimpleNamespace(base_color_texture=t) for t in (image, None, image, other)]
+    mesh = SimpleNamespace(materials=materials)
+    first, untextured, second, third = reference_textures(mesh, max_size=32)
+    assert untextured is None and first is second and third is not first
+    assert first.shape == (32, 32, 3)
+    np.testing.assert_array_equal(first, reference_texture(image, 32))
+    assert reference_textures(mesh, max_size=None)[0] is image  # the product: the original

@@ -351,8 +351,10 @@ def _timely_layout(
     if planned_by is None or time.perf_counter() < planned_by:
         atlas = plan_layout(mesh, rule, renderer, config, planned_by)
         facts["layout"] = atlas.facts
-        if not atlas.moved or planned_by is None or time.perf_counter() <= planned_by:
-            return atlas if atlas.moved else None
+        if not atlas.moved:
+            return None
+        if planned_by is None or time.perf_counter() <= planned_by:
+            return atlas
     facts["layout_skipped"] = "the time budget left no time to plan and bake a new layout"
     return None
 
