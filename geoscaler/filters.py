@@ -99,6 +99,18 @@ def resize_channels(
     return np.stack(channels, axis=-1)
 
 
+def resize_float(
+    values: np.ndarray, size: tuple[int, int], resample: Image.Resampling
+) -> np.ndarray:
+    """Resize ``(H, W, C)`` float32 to ``size = (h, w)`` with a Pillow filter, channel by
+    channel as 32-bit float ('F') images: the filter of :func:`resize_channels` without its
+    8-bit input and output, for values quantised once, afterwards."""
+    h, w = size
+    planes = [np.ascontiguousarray(values[..., c], np.float32) for c in range(values.shape[2])]
+    resized = [Image.fromarray(plane).resize((w, h), resample) for plane in planes]
+    return np.stack([np.asarray(plane) for plane in resized], axis=-1)
+
+
 def _resample(
     texture: np.ndarray, target: int | tuple[int, int], resample: Image.Resampling
 ) -> np.ndarray:

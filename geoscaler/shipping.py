@@ -95,7 +95,7 @@ def relayout_maps(
     of a normal-mapped material only move and scale (:func:`geoscaler.atlas.has_normal_map`),
     so tangent frames keep their directions."""
     made: dict[int, tuple[np.ndarray, str]] = {}
-    for group, padding in zip(atlas.groups, atlas.paddings, strict=True):
+    for group in atlas.groups:
         faces = np.isin(mesh.face_material, group) & (atlas.chart_of_face >= 0)
         layout = ChartMaps(atlas.uvs[faces], atlas.chart_of_face[faces], atlas.linear, atlas.offset)
         for index in group:
@@ -106,7 +106,7 @@ def relayout_maps(
                 kind = texture_class(slot)
                 side = plan.rule(kind).size(*pixels.shape[:2])[0]
                 oversample = int(np.clip(pixels.shape[0] // side, 1, 4))
-                baked, _ = bake(pixels, kind, layout, side, 2 * padding, oversample)
+                baked, _ = bake(pixels, kind, layout, side, oversample)
                 made[id(pixels)] = baked, f"re-baked into the new UV layout ({kind})"
     return made
 

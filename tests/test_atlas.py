@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 from mesh_support import ribbon_mesh
+from PIL import Image
 
 from geoscaler import atlas as atlas_module
 from geoscaler import packing
@@ -27,6 +28,7 @@ from geoscaler.atlas import (
 )
 from geoscaler.bake import ChartMaps, bake, decode, encode
 from geoscaler.cameras import validation_cameras
+from geoscaler.filters import resize_float
 from geoscaler.mesh import Material, TexturedMesh, compute_vertex_normals
 from geoscaler.packing import Charts, PackingError, pack
 from geoscaler.render import Renderer
@@ -280,14 +282,31 @@ def test_materials_keep_their_layout_with_the_reason():
     }
 
 
-def test_bake_into_the_same_layout_reproduces_the_texture():
+def identity_layout(mesh) -> ChartMaps:
+    """The mesh's charts, each mapped to where it is."""
+    count = int(chart_labels(mesh).max()) + 1
+    return ChartMaps(
+        mesh.corner_uvs(),
+        chart_labels(mesh),
+        np.tile(np.eye(2), (count, 1, 1)),
+        np.zeros((count, 2)),
+    )
+
+
+def test_bake_into_the_same_layout_reproduces_the_texture_gutters_included():
     mesh = cube_mesh(texture_size=64)
     texture = mesh.materials[0].base_color_texture
-    charts = chart_labels(mesh)
-    identity = ChartMaps(mesh.corner_uvs(), charts, np.tile(np.eye(2), (6, 1, 1)), np.zeros((6, 2)))
-    baked, covered = bake(texture, COLOR, identity, 64, reach=2)
-    assert covered.sum() > 0
-    np.testing.assert_array_equal(baked[covered], texture[covered])
+    baked, covered = bake(texture, COLOR, identity_layout(mesh), 64)
+    assert 0 < covered.sum() < covered.size  # the cube's atlas has gutters
+    np.testing.assert_array_equal(baked, texture)  # they read the original, as the charts do
+
+
+def test_an_oversampled_colour_bake_is_the_lanczos_baseline_rounded_once():
+    mesh = cube_mesh(texture_size=64)
+    texture = mesh.materials[0].base_color_texture
+    baked, _ = bake(texture, COLOR, identity_layout(mesh), 32, oversample=2)
+    exact = resize_float(texture.astype(np.float32) / 255, (32, 32), Image.Resampling.LANCZOS)
+    np.testing.assert_array_equal(baked, np.round(np.clip(exact, 0, 1) * 255).astype(np.uint8))
 
 
 def test_bake_follows_each_chart_to_its_new_place():
@@ -295,7 +314,7 @@ def test_bake_follows_each_chart_to_its_new_place():
     texture = mesh.materials[0].base_color_texture
     atlas = repack(mesh, [(64, 64)], footprint_ids(mesh, [10] * 6), 256)
     layout = ChartMaps(atlas.uvs, atlas.chart_of_face, atlas.linear, atlas.offset)
-    baked, covered = bake(texture, COLOR, layout, 64, reach=2)
+    baked, covered = bake(texture, COLOR, layout, 64)
     # a texel centre of the new map reads the original where its chart's map sends it back
     rows, cols = np.nonzero(covered)
     row, col = rows[len(rows) // 2], cols[len(cols) // 2]

@@ -133,12 +133,12 @@ def baked_maps(
     """Per material its reference map baked into the new layout (materials of one group share
     one array), or None for a material that keeps its layout or has no map."""
     out: list[np.ndarray | None] = [None] * len(mesh.materials)
-    for group, padding in zip(atlas.groups, atlas.paddings, strict=True):
+    for group in atlas.groups:
         faces = np.isin(mesh.face_material, group) & (atlas.chart_of_face >= 0)
         layout = ChartMaps(atlas.uvs[faces], atlas.chart_of_face[faces], atlas.linear, atlas.offset)
         size = sizes[group[0]][0]
         reference = references[group[0]]
-        pixels, _ = bake(reference, COLOR, layout, size, 2 * padding, oversampling(reference, size))
+        pixels, _ = bake(reference, COLOR, layout, size, oversampling(reference, size))
         for material in group:
             out[material] = pixels
     return out
