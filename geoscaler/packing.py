@@ -251,6 +251,15 @@ def _split(proxies, new: np.ndarray, count: int, size: int) -> np.ndarray:
     return _fit(old, chart, new, count)[2] > 0.01 / size
 
 
+def aligned_scales(scales: np.ndarray, tpu: float, size: int, grid: float) -> np.ndarray:
+    """``(C,)`` ``scales`` at density ``tpu`` rounded down so that each chart's planned scale
+    is ``grid`` (the original's texels per texel of the output) times a power of two, at most
+    ``grid`` itself: each new texel then covers a power-of-two block of original texels."""
+    planned = scales * tpu / size
+    steps = np.floor(np.log2(np.maximum(planned, 1e-30) / grid) + 1e-9)
+    return grid * 2.0 ** np.minimum(steps, 0.0) * size / tpu
+
+
 def _place(
     charts: Charts,
     scales: np.ndarray,
@@ -259,9 +268,13 @@ def _place(
     padding: int,
     rotate: bool,
     boxes: np.ndarray,
+    grid: float | None = None,
 ) -> tuple[Packed | None, np.ndarray]:
     """One packing at density ``tpu``: the charts' similarities, or None; and the boxes used
-    (charts xatlas split are boxed and packed again)."""
+    (charts xatlas split are boxed and packed again). With a ``grid``, the scales are
+    :func:`aligned_scales` at ``tpu``."""
+    if grid is not None:
+        scales = aligned_scales(scales, tpu, size, grid)
     for _ in range(4):
         proxies = _proxies(charts, scales, tpu, boxes)
         new = _pack_once(proxies, scales, size, tpu, padding, rotate)
@@ -293,12 +306,16 @@ def pack(
     padding: int,
     rotate: bool,
     deadline: float | None = None,
+    grid: float | None = None,
 ) -> Packed:
     """The densest packing of ``charts``, each scaled by ``scales`` ``(C,)``, into one
     ``size x size`` atlas with ``padding`` texels between charts; charts turn by multiples of
     90 degrees or transpose only where ``rotate``. Deterministic: the same input gives the
     same output, unless the search is stopped by ``deadline`` (``time.perf_counter()``; None:
     never): past it no further density is tried, and the densest found so far is returned.
+    With a ``grid`` (the original's texels per output texel), each chart's scale at the
+    density tried is rounded down to that grid times a power of two (:func:`aligned_scales`):
+    the packed scales are ``sqrt(|det linear|)``, not ``scales`` times the density.
 
     Raises:
         PackingError: not even a sparse packing holds the charts at their planned scales, or
@@ -322,7 +339,7 @@ def pack(
         if late():
             break
         middle = math.sqrt(low * high)
-        packed, boxes = _place(charts, scales, size, middle, padding, rotate, boxes)
+        packed, boxes = _place(charts, scales, size, middle, padding, rotate, boxes, grid)
         if packed is not None:
             low, best = middle, packed
         else:
@@ -336,8 +353,69 @@ def pack(
     for factor in PROBES:
         if late():
             break
-        packed, boxes = _place(
-            charts, scales, size, best.texels_per_unit * factor, padding, rotate, boxes
-        )
+        tpu = best.texels_per_unit * factor
+        packed, boxes = _place(charts, scales, size, tpu, padding, rotate, boxes, grid)
         best = packed or best
     return best
+
+
+def chart_texels(
+    corner_uvs: np.ndarray, labels: np.ndarray, size: int, supersample: int = 2
+) -> tuple[np.ndarray, np.ndarray]:
+    """Texels each face's chart covers: ``((N,) flat texel index, (N,) label)`` pairs, each
+    once, where a texel counts as covered when one of its ``supersample^2`` sample centres
+    lies in a face (edges included); repeat addressing wraps texels onto the grid.
+
+    Args:
+        corner_uvs: ``(F, 3, 2)`` UVs of each face's corners; labels: ``(F,)`` int chart of
+            each face; size: texels per side.
+    """
+    grid = size * supersample
+    corners = np.asarray(corner_uvs, np.float64)
+    points = np.stack([corners[..., 0] * grid, (1.0 - corners[..., 1]) * grid], axis=-1)
+    low = np.ceil(points.min(axis=1) - 0.5).astype(np.int64)
+    high = np.floor(points.max(axis=1) - 0.5).astype(np.int64)
+    span = np.maximum(high - low + 1, 0)
+    counts = span[:, 0] * span[:, 1]
+    face = np.repeat(np.arange(len(corners)), counts)
+    rank = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    x = low[face, 0] + rank % np.maximum(span[face, 0], 1) + 0.5
+    y = low[face, 1] + rank // np.maximum(span[face, 0], 1) + 0.5
+    p = points[face]
+    sides = []
+    for a, b in ((0, 1), (1, 2), (2, 0)):
+        edge = p[:, b] - p[:, a]
+        sides.append(edge[:, 0] * (y - p[:, a, 1]) - edge[:, 1] * (x - p[:, a, 0]))
+    sides = np.stack(sides, axis=1)
+    scale = np.abs(sides).max(axis=1, keepdims=True) * 1e-9 + 1e-12
+    inside = (sides >= -scale).all(axis=1) | (sides <= scale).all(axis=1)
+    col = np.mod(np.floor(x[inside] / supersample).astype(np.int64), size)
+    row = np.mod(np.floor(y[inside] / supersample).astype(np.int64), size)
+    count = int(labels.max(initial=0)) + 1
+    keys = np.unique((row * size + col) * count + labels[face[inside]])  # by texel, then label
+    return keys // count, keys % count
+
+
+def overlapping_texels(texels: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Flat texel indices covered by more than one label (:func:`chart_texels`)."""
+    index, count = np.unique(texels, return_counts=True)
+    return index[count > 1]
+
+
+def padding_violations(texels: np.ndarray, labels: np.ndarray, size: int, padding: int) -> int:
+    """Texels of one chart with a texel of another chart at most ``padding`` texels away
+    (Chebyshev distance, repeat addressing): 0 when at least ``padding - 1`` empty texels
+    separate every two charts... counted as pairs of texels closer than ``padding``."""
+    grid = np.full(size * size, -1, np.int64)
+    grid[texels] = labels
+    grid[overlapping_texels(texels, labels)] = -2
+    grid = grid.reshape(size, size)
+    reach = max(padding - 1, 0)
+    bad = 0
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            if (dy, dx) == (0, 0):
+                continue
+            other = np.roll(grid, (dy, dx), axis=(0, 1))
+            bad += int(((grid >= 0) & (other >= 0) & (grid != other)).sum())
+    return bad

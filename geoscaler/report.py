@@ -317,7 +317,7 @@ def format_report(document: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-LAYOUT_NAMES = {"keep": "own layout", "repack": "repacked"}
+LAYOUT_NAMES = {"keep": "own layout", "repack": "repacked", "unaligned": "repacked unaligned"}
 
 
 def _layout_lines(method: str, details: dict[str, Any]) -> list[str]:
@@ -329,18 +329,22 @@ def _layout_lines(method: str, details: dict[str, Any]) -> list[str]:
     if not layout:
         return []
     used = details.get("layout_used", "keep")
-    if used == "repack" and details.get("shipped", method) == method:
+    shipped = used != "keep" and details.get("shipped", method) == method
+    if shipped:
+        aligned = layout.get("alignment_texels", 1)
         line += (
             f"{layout['charts']} charts repacked, texel density x{layout['k']:.2f} where the "
             f"views look (x{layout['k_area']:.2f} by UV area), padding {layout['padding_texels']} "
-            "texels; new UVs written, every map of those materials re-baked"
+            "texels"
+            + (f", aligned to {aligned}-texel blocks of the original" if aligned > 1 else "")
+            + "; new UVs written, every map of those materials re-baked"
         )
-    elif used == "repack":
+    elif used != "keep":
         line += f"the repacked result did not ship ({details.get('shipped')} did, on the own UVs)"
     else:
         line += "the mesh's own layout kept"
     lines = [line]
-    if used == "repack" and details.get("shipped", method) == method and layout.get("charts_cut"):
+    if shipped and layout.get("charts_cut"):
         lines.append(_cut_line(layout))
     if details.get("race"):
         trials = []

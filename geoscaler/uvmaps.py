@@ -326,6 +326,18 @@ def face_max_levels(
     Returns:
         ``(F,)`` int64 levels in ``[-1, num_levels - 1]``.
     """
+    bound = face_lod_bounds(mesh, faces, size, sample_extent * GRAZING_STRETCH)
+    num_levels = len(mip_sizes(*size))
+    levels = np.clip(np.floor(np.nan_to_num(bound, neginf=0.0)) + 1, 0, num_levels - 1)
+    return np.where(np.isfinite(bound), levels.astype(np.int64), -1)
+
+
+def face_lod_bounds(
+    mesh: TexturedMesh, faces: np.ndarray, size: tuple[int, int], sample_extent: float
+) -> np.ndarray:
+    """``(F,)`` float64 the largest level of detail a lookup on each face has where one screen
+    sample spans ``sample_extent`` scene units on it (log2 of the face's larger stretch in
+    texels of level 0 per scene unit, times that extent), ``-inf`` for a face of zero area."""
     height, width = size
     positions = mesh.normalized_positions().astype(np.float64)[faces]  # (F, 3, 3)
     edge1, edge2 = positions[:, 1] - positions[:, 0], positions[:, 2] - positions[:, 0]
@@ -347,10 +359,7 @@ def face_max_levels(
     det = j_col0[:, 0] * j_col1[:, 1] - j_col0[:, 1] * j_col1[:, 0]
     gap = np.sqrt(np.maximum(frobenius**2 - 4 * det**2, 0.0))
     sigma = np.sqrt(np.maximum(0.5 * (frobenius + gap), 1e-30))
-    bound = np.log2(sigma * sample_extent * GRAZING_STRETCH)
-    num_levels = len(mip_sizes(height, width))
-    levels = np.clip(np.floor(bound) + 1, 0, num_levels - 1).astype(np.int64)
-    return np.where(visible, levels, -1)
+    return np.where(visible, np.log2(sigma * sample_extent), -np.inf)
 
 
 def reachable_texels(

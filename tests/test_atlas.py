@@ -16,13 +16,12 @@ from PIL import Image
 from geoscaler import atlas as atlas_module
 from geoscaler import packing
 from geoscaler.atlas import (
+    ALIGNMENT,
     CUT_GAIN,
+    alignment_for,
     atlas_problems,
     chart_footprint,
-    chart_texels,
     layout_groups,
-    overlapping_texels,
-    padding_violations,
     planned_scales,
     repack,
 )
@@ -30,7 +29,14 @@ from geoscaler.bake import ChartMaps, bake, decode, encode
 from geoscaler.cameras import validation_cameras
 from geoscaler.filters import resize_float
 from geoscaler.mesh import Material, TexturedMesh, compute_vertex_normals
-from geoscaler.packing import Charts, PackingError, pack
+from geoscaler.packing import (
+    Charts,
+    PackingError,
+    chart_texels,
+    overlapping_texels,
+    pack,
+    padding_violations,
+)
 from geoscaler.render import Renderer
 from geoscaler.sizes import COLOR, DATA, NORMAL
 from geoscaler.uvmaps import chart_labels, cut_charts
@@ -134,6 +140,37 @@ def test_the_new_layout_passes_every_guard():
     assert padding_violations(texels, labels, SIZE, atlas.padding) == 0
 
 
+def test_aligned_scales_are_the_grid_times_powers_of_two_at_most_the_grid():
+    planned = np.array([5.0, 3.0, 2.0, 1.5, 0.7])
+    tpu, size = 128.0, 64
+    aligned = packing.aligned_scales(planned * size / tpu, tpu, size, grid=4.0)
+    np.testing.assert_allclose(aligned * tpu / size, [4.0, 2.0, 2.0, 1.0, 0.5])
+
+
+def test_charts_are_aligned_only_where_the_far_views_minify_the_texture():
+    mesh = cube_mesh()
+    # a cube side is 7.7 texels of 64 (magnified far away), 983 of 8192 (minified)
+    assert alignment_for(mesh, mesh.faces, 64, 256) == 1
+    assert alignment_for(mesh, mesh.faces, 8192, 256) == ALIGNMENT == 16
+
+
+def test_aligned_charts_cover_power_of_two_blocks_of_the_original_on_its_grid():
+    mesh = cube_mesh()
+    size, detail = 256, 2.0  # 128 samples a side: a far sample spans 1.2 texels, minified
+    atlas = repack(
+        mesh, [(size, size)], footprint_ids(mesh, [40, 10, 20, 10, 5, 10]), 128, [detail]
+    )
+    assert atlas.moved and atlas.alignments == [ALIGNMENT]
+    steps = np.log2(atlas.planned / detail)
+    np.testing.assert_allclose(steps, np.round(steps), atol=1e-9)
+    assert steps.max() <= 0  # never more texels than the original has
+    texels = atlas.offset * size / ALIGNMENT
+    np.testing.assert_allclose(texels, np.round(texels), atol=1e-9)
+    assert atlas_problems(mesh, atlas) == []
+    off_grid = replace(atlas, offset=atlas.offset + 1.0 / size)
+    assert f"charts off the {ALIGNMENT}-texel grid" in " ".join(atlas_problems(mesh, off_grid))
+
+
 def test_the_same_input_gives_the_same_uvs():
     mesh = cube_mesh()
     ids = footprint_ids(mesh, [40, 10, 20, 10, 5, 10])
@@ -208,7 +245,7 @@ def test_densities_above_the_bisections_answer_are_tried(monkeypatch):
     charts = Charts(np.array([[0, 1, 2], [0, 2, 3]]), uvs, np.zeros(4, np.int64), 1)
     every_texel = 32.0  # size / sqrt(area): the search's upper end
 
-    def place(charts, scales, size, tpu, padding, rotate, boxes):
+    def place(charts, scales, size, tpu, padding, rotate, boxes, grid=None):
         fits = tpu < 0.5 * every_texel or 0.55 * every_texel <= tpu < 0.6 * every_texel
         found = packing.Packed(np.eye(2)[None] * tpu / size, np.zeros((1, 2)), tpu, boxes)
         return (found if fits else None), boxes
@@ -224,7 +261,7 @@ def test_the_packing_search_stops_at_its_deadline(monkeypatch):
     charts = Charts(np.array([[0, 1, 2], [0, 2, 3]]), uvs, np.zeros(4, np.int64), 1)
     tried = []
 
-    def place(charts, scales, size, tpu, padding, rotate, boxes):
+    def place(charts, scales, size, tpu, padding, rotate, boxes, grid=None):
         tried.append(tpu)
         found = packing.Packed(np.eye(2)[None] * tpu / size, np.zeros((1, 2)), tpu, boxes)
         return (found if tpu < 16.0 else None), boxes  # half the all-texels density, 32

@@ -72,6 +72,41 @@ def test_auto_tries_both_layouts_and_the_better_validated_goes_on(cube):
     assert result.details["validation_psnr_fg"] >= race[winner]["validation_psnr_fg"]
 
 
+def minifying(uv: str, steps: int):
+    """``direct`` at 4x on a cube whose 256-texel output even the far views minify (64 pixels
+    a side: a far sample spans more than a texel), so its charts are aligned."""
+    from geoscaler.render import Renderer
+
+    cube = cube_mesh(texture_size=1024)
+    renderer = Renderer(cube, "cpu", Evaluation.quick((0, 20, 40), image_size=64))
+    return run_method("direct", cube, 4, options(uv, steps), RunContext(renderer))
+
+
+def test_where_charts_are_aligned_the_race_weighs_the_unaligned_layout_too():
+    result = minifying("auto", steps=10)
+    race = result.details["race"]
+    assert list(race) == ["keep", "repack", "unaligned"]
+    assert [trial["steps"] for trial in race.values()] == [2, 2, 2]
+    ranks = {name: (t["shortfall_db"], t["validation_psnr_fg"]) for name, t in race.items()}
+    winner = max(ranks, key=lambda name: (ranks[name], name == "keep"))
+    assert result.details["layout_used"] == winner
+    if winner != "keep":  # the report describes the layout that went on
+        assert result.details["layout"] == result.layout.facts
+        assert result.layout.aligned == (winner == "repack")
+
+
+def test_repack_races_its_aligned_and_unaligned_layouts():
+    result = minifying("repack", steps=10)
+    assert list(result.details["race"]) == ["repack", "unaligned"]
+    assert result.details["layout_used"] in ("repack", "unaligned")
+    assert result.uvs is not None and result.layout.aligned == (
+        result.details["layout_used"] == "repack"
+    )
+    assert result.details["layout"]["alignment_texels"] == (
+        16 if result.details["layout_used"] == "repack" else 1
+    )
+
+
 def test_the_race_reports_one_run_of_steps_and_one_end(cube):
     events = []
     raced(cube, steps=5, on_event=events.append)

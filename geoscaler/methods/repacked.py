@@ -43,6 +43,9 @@ MAX_OVERSAMPLE = 4
 TRIAL_SHARE = 0.2
 """``--uv auto``: the share of the steps, and of the time left, that each layout's trial gets
 before the better one goes on (:func:`raced`)."""
+NEW_LAYOUTS = ("repack", "unaligned")
+"""The names of the new layouts a race may weigh: the planned one, and where that aligned its
+charts to the original's mip blocks, the unaligned one (:func:`_timely_layouts`)."""
 PREPARING_SHARE = 0.4
 """Under a time budget, the share of the method's time by which the new layout is planned and
 baked, the rest left to the steps: the packing's search stops there, the cut's plan is not
@@ -107,10 +110,11 @@ def plan_layout(
     renderer: Renderer,
     config: Any,
     deadline: float | None = None,
+    align: bool = True,
 ) -> Atlas:
     """The new layout for ``rule``'s sizes by ``deadline`` (``time.perf_counter()``,
     :func:`~geoscaler.atlas.repack`; None: no limit), its chart scales from the faces every
-    training camera sees, one sample per pixel.
+    training camera sees, one sample per pixel; ``align``: False never aligns charts.
 
     Every camera of the training pool, not a few: on 8 of its 48 the mug's charts that those
     views saw little were starved (its bake alone 0.86 dB below bicubic on Q, +0.41 dB from
@@ -118,13 +122,12 @@ def plan_layout(
     cameras = sample_training_cameras(config.pool_views, config.seed, config.distances)
     sizes = output_sizes_for(mesh, rule, renderer)
     references = renderer.reference_maps()
-    caps = [
+    detail = [
         None if s is None or r is None else r.shape[0] / s[0]
         for s, r in zip(sizes, references, strict=True)
     ]
-    cap = max((c for c in caps if c is not None), default=None)
     tri_ids = [renderer.rasterize(camera, renderer.image_size).tri_ids for camera in cameras]
-    return repack(mesh, sizes, tri_ids, renderer.resolution, cap, deadline)
+    return repack(mesh, sizes, tri_ids, renderer.resolution, detail, deadline, align)
 
 
 def baked_maps(
@@ -215,8 +218,9 @@ def repacked_direct(
     start_model: Any,
     defaults: dict,
 ) -> MethodResult:
-    """``direct`` in a new layout (``--uv repack``), or ``--uv auto``'s race of the two
-    layouts (:func:`raced`).
+    """``direct`` in a new layout (``--uv repack``; where two new layouts are planned,
+    :func:`_timely_layouts`, their race), or ``--uv auto``'s race of the mesh's own layout and
+    the new ones (:func:`raced`).
 
     Args:
         start_model: ``(mesh, rule, renderer, starts) -> TexelModel`` making free texels from
@@ -234,31 +238,40 @@ def repacked_direct(
     validation = context.validation
     if validation is None:
         validation = Validation(validation_view_sets(renderer), sizes)
-    references = renderer.reference_maps()
     facts: dict[str, Any] = {"uv": mode}
     end = _method_end(config, context, started)
-    atlas = _timely_layout(mesh, rule, renderer, config, validation, started, end, facts)
+    atlases = _timely_layouts(mesh, rule, renderer, config, validation, started, end, facts)
     own = Layout(renderer.relaid(mesh.uvs, memo), validation)
-    if atlas is None:
+    if not atlases:
         facts["layout_used"] = "keep"
         model = start_model(mesh, rule, own.renderer, None)
         return own.fit(mesh, rule, model, config, context, started, facts)
-    baked = baked_maps(mesh, atlas, references, sizes)
+    new = {
+        name: _new_layout(mesh, atlas, renderer, validation, sizes, memo)
+        for name, atlas in zip(NEW_LAYOUTS, atlases, strict=False)
+    }
+    if mode == "repack" and len(new) == 1:
+        facts["layout_used"] = "repack"
+        model = start_model(mesh, rule, new["repack"].renderer, new["repack"].starts)
+        return new["repack"].fit(mesh, rule, model, config, context, started, facts)
+    layouts = {"keep": own, **new} if mode == "auto" else new
+    return raced(mesh, rule, layouts, start_model, config, context, started, facts)
+
+
+def _new_layout(
+    mesh: TexturedMesh,
+    atlas: Atlas,
+    renderer: Renderer,
+    validation: Validation,
+    sizes: list,
+    memo: dict,
+) -> Layout:
+    """The :class:`Layout` of ``atlas``, starting from the reference maps baked into it."""
+    baked = baked_maps(mesh, atlas, renderer.reference_maps(), sizes)
     linear = {id(b): texture_to_linear(b, renderer.device) for b in baked if b is not None}
     relaid = renderer.relaid(atlas.uvs, memo)
-    new = Layout(
-        relaid,
-        LayoutValidation(validation, relaid),
-        [None if b is None else linear[id(b)] for b in baked],  # groups share one start
-        atlas,
-        baked,
-    )
-    if mode == "repack":
-        facts["layout_used"] = "repack"
-        model = start_model(mesh, rule, relaid, new.starts)
-        return new.fit(mesh, rule, model, config, context, started, facts)
-    layouts = {"keep": own, "repack": new}
-    return raced(mesh, rule, layouts, start_model, config, context, started, facts)
+    starts = [None if b is None else linear[id(b)] for b in baked]  # groups share one start
+    return Layout(relaid, LayoutValidation(validation, relaid), starts, atlas, baked)
 
 
 def raced(
@@ -271,16 +284,17 @@ def raced(
     started: float,
     facts: dict,
 ) -> MethodResult:
-    """``--uv auto``: a trial in each layout, then the one whose trial validates better goes
-    on from its best candidate with the steps and the time left.
+    """A trial in each layout (``--uv auto``: the mesh's own and the new ones; ``repack``: the
+    new ones, aligned and not), then the one whose trial validates best goes on from its best
+    candidate with the steps and the time left.
 
     Each trial runs at most :data:`TRIAL_SHARE` of the time left when the race starts,
     counted from its own start (the first trial's views are cached in the whole run's caching
     window, which may run past its end). The first makes at most that share of the steps, the
-    second as many as the first made (the first's steps are slower: they cache the views
-    both use), so that both are ranked after the same number of steps. Trials are
+    others as many as the first made (the first's steps are slower: they cache the views
+    all use), so that all are ranked after the same number of steps. Trials are
     ranked as the loop ranks candidates (:meth:`Validation.rank`: the same frozen views and
-    floor in both layouts; a tie keeps the mesh's own). The winner's loop goes on from its
+    floor in every layout; a tie keeps the mesh's own). The winner's loop goes on from its
     validated best, with its training pool (growing again) and that best's scores as its
     start's, so what ships is never below the better trial on the validation views.
     """
@@ -326,7 +340,7 @@ def raced(
     return result
 
 
-def _timely_layout(
+def _timely_layouts(
     mesh: TexturedMesh,
     rule: SizeRule,
     renderer: Renderer,
@@ -335,28 +349,39 @@ def _timely_layout(
     started: float,
     end: float | None,
     facts: dict,
-) -> Atlas | None:
-    """The new layout, planned and baked by :data:`PREPARING_SHARE` of the time from
-    ``started`` to ``end`` (None: no budget), or None where it does not move a chart or there
-    is no time for it (the reason in ``facts["layout_skipped"]``); its facts in
-    ``facts["layout"]``. The bake is priced first (:func:`bake_seconds`), so the plan's
-    deadline leaves it its time."""
-    planned_by = None
+) -> list[Atlas]:
+    """The new layouts (:data:`NEW_LAYOUTS`), planned and baked by :data:`PREPARING_SHARE` of
+    the time from ``started`` to ``end`` (None: no budget): the planned one, and where that
+    aligned its charts to the original's mip blocks (:func:`~geoscaler.atlas.alignment_for`)
+    the unaligned one too, time allowing, so that a race weighs them; none where the layout
+    does not move a chart or there is no time for it (the reason in
+    ``facts["layout_skipped"]``). The first one's facts go in ``facts["layout"]``. Each bake
+    is priced first (:func:`bake_seconds`), so each plan's deadline leaves the bakes their
+    time."""
+    planned_by = baking = None
     if end is not None:
         if not validation.view_cost:
             validation.cache_next()  # prices the bake (the loop would cache it first)
         sizes = output_sizes_for(mesh, rule, renderer)
         baking = bake_seconds(sizes, renderer.reference_maps(), renderer, validation.view_cost)
         planned_by = started + PREPARING_SHARE * (end - started) - baking
-    if planned_by is None or time.perf_counter() < planned_by:
-        atlas = plan_layout(mesh, rule, renderer, config, planned_by)
-        facts["layout"] = atlas.facts
+    atlases: list[Atlas] = []
+    for align in (True, False):
+        deadline = None if planned_by is None else planned_by - len(atlases) * baking
+        if deadline is not None and time.perf_counter() >= deadline:
+            break
+        atlas = plan_layout(mesh, rule, renderer, config, deadline, align)
+        if align:
+            facts["layout"] = atlas.facts
         if not atlas.moved:
-            return None
-        if planned_by is None or time.perf_counter() <= planned_by:
-            return atlas
-    facts["layout_skipped"] = "the time budget left no time to plan and bake a new layout"
-    return None
+            return atlases
+        if deadline is None or time.perf_counter() <= deadline:
+            atlases.append(atlas)
+        if not atlas.aligned:
+            break
+    if not atlases:
+        facts["layout_skipped"] = "the time budget left no time to plan and bake a new layout"
+    return atlases
 
 
 def _method_end(config: OptimizeConfig, context: RunContext, started: float) -> float | None:
@@ -424,8 +449,11 @@ def _winner(trials: dict[str, MethodResult], layouts: dict[str, Layout], facts: 
         }
         for name, trial in trials.items()
     }
-    facts["layout_used"] = max(ranks, key=lambda name: (ranks[name], name == "keep"))
-    return facts["layout_used"]
+    winner = max(ranks, key=lambda name: (ranks[name], name == "keep"))
+    facts["layout_used"] = winner
+    if layouts[winner].atlas is not None:
+        facts["layout"] = layouts[winner].atlas.facts
+    return winner
 
 
 def _stopped(context: RunContext) -> bool:
