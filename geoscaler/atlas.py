@@ -74,9 +74,9 @@ ALIGNMENT = int(2 * GRAZING_STRETCH)
 """Texels charts are aligned to where the far views minify the new texture
 (:func:`alignment_for`): a frontal lookup there reads level 0 and the next, a grazing one
 (:data:`~geoscaler.uvmaps.GRAZING_STRETCH`, 3 levels coarser) level 4, blocks of 16 texels.
-The chain's bake alone at 1024 from 4096, 6 views per set, gain over bicubic far / Q: -4.30
-/ +3.87 dB unaligned; aligned to 4 texels -1.25, to 8 +0.18, to 16 +0.37 / +2.03 (k 1.67 ->
-1.22). At the protocol's 512 from 2048 (magnified far away), 4 texels cost it 3.8 dB far."""
+The chain's bake alone at 1024 from 4096 (its gutters as before 7207740), 6 views per set, gain
+over bicubic far / Q: -4.45 / +3.66 dB unaligned; aligned to 4 texels -1.25, to 8 +0.18, to
+16 +0.37 / +2.03 (k 1.67 -> 1.22). At 512 from 2048 (magnified far away) 4 cost 3.8 dB far."""
 CUT_SIDE = 0.5
 """Longest side, as a share of the atlas's side, of a chart left whole: a longer one bounds
 the density of any whole-chart packing (``benchmarks/layout_bounds.py``: one chart spans the
