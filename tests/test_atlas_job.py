@@ -107,6 +107,12 @@ def test_repack_races_its_aligned_and_unaligned_layouts():
     )
 
 
+def test_fewer_steps_than_layouts_run_the_first_layout_alone(cube):
+    result = raced(cube, steps=1)
+    assert result.details["steps"] == 1 and "race" not in result.details
+    assert result.details["layout_used"] == "keep" and result.uvs is None
+
+
 def test_the_race_reports_one_run_of_steps_and_one_end(cube):
     events = []
     raced(cube, steps=5, on_event=events.append)

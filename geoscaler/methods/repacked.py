@@ -297,7 +297,16 @@ def raced(
     floor in every layout; a tie keeps the mesh's own). The winner's loop goes on from its
     validated best, with its training pool (growing again) and that best's scores as its
     start's, so what ships is never below the better trial on the validation views.
+    Fewer steps than layouts leave no room for a trial in each: the first layout goes on
+    alone (the mesh's own for ``auto``), so the steps asked for are never exceeded.
     """
+    if config.steps < len(layouts):
+        name, layout = next(iter(layouts.items()))
+        facts["layout_used"] = name
+        if layout.atlas is not None:
+            facts["layout"] = layout.atlas.facts
+        model = start_model(mesh, rule, layout.renderer, layout.starts)
+        return layout.fit(mesh, rule, model, config, context, started, facts)
     end = _method_end(config, context, started)
     cameras = sample_training_cameras(config.pool_views, config.seed, config.distances)
     race = _Trials(config, context, started, end, cameras)
