@@ -71,12 +71,10 @@ banana at 4x (10 views per set, the bake alone) 2 texels gave 49.29 / 50.70 dB P
 2.4 / 4.0, 4 texels 49.51 / 52.60 (bicubic 48.30 / 53.48): far views read coarse levels
 across charts; bob lost 0.07 dB at 2.4."""
 ALIGNMENT = int(2 * GRAZING_STRETCH)
-"""Texels charts are aligned to where the far views minify the new texture
-(:func:`alignment_for`): a frontal lookup there reads level 0 and the next, a grazing one
-(:data:`~geoscaler.uvmaps.GRAZING_STRETCH`, 3 levels coarser) level 4, blocks of 16 texels.
-The chain's bake alone at 1024 from 4096 (its gutters as before 7207740), 6 views per set, gain
-over bicubic far / Q: -4.45 / +3.66 dB unaligned; aligned to 4 texels -1.25, to 8 +0.18, to
-16 +0.37 / +2.03 (k 1.67 -> 1.22). At 512 from 2048 (magnified far away) 4 cost 3.8 dB far."""
+"""Texels charts are aligned to where far views minify (:func:`alignment_for`): a frontal
+lookup reads level 0 and 1, a grazing one (GRAZING_STRETCH) 3 levels coarser, 16-texel blocks.
+The chain's bake alone at 1024 from 4096 (old gutters), 6 views a set, far gain over bicubic:
+-4.45 dB unaligned, -1.25 / +0.18 / +0.37 aligned to 4 / 8 / 16 texels (k 1.67 -> 1.22)."""
 CUT_SIDE = 0.5
 """Longest side, as a share of the atlas's side, of a chart left whole: a longer one bounds
 the density of any whole-chart packing (``benchmarks/layout_bounds.py``: one chart spans the
@@ -488,10 +486,8 @@ def _lay_out(
     atlas.linear[ids] = packed.linear
     atlas.offset[ids] = offset
     atlas.mirrored[ids] = np.linalg.det(packed.linear) < 0
-    chart, old = charts[faces], mesh.corner_uvs()[faces].astype(np.float64)
-    atlas.uvs[faces] = np.einsum("fij,fkj->fki", atlas.linear[chart], old)
-    atlas.uvs[faces] += atlas.offset[chart][:, None]
-    atlas.chart_of_face[faces] = chart
+    atlas.chart_of_face[faces] = charts[faces]
+    atlas.uvs[faces] = mapped_corners(mesh, atlas, faces)
     atlas.groups.append(materials)
     atlas.paddings.append(padding)
     atlas.alignments.append(blocks)
@@ -564,9 +560,7 @@ def group_problems(mesh: TexturedMesh, atlas: Atlas, group: int) -> list[str]:
     if (wrong > SCALE_TOLERANCE).any():
         problems.append(f"{int((wrong > SCALE_TOLERANCE).sum())} charts not at their planned scale")
     old_corners, new_corners = mesh.corner_uvs()[faces].astype(float), atlas.uvs[faces]
-    mapped = np.einsum("mij,mkj->mki", atlas.linear[chart], old_corners)
-    mapped += atlas.offset[chart][:, None]
-    if np.abs(mapped - new_corners).max(initial=0) > 1e-5:
+    if np.abs(mapped_corners(mesh, atlas, faces) - new_corners).max(initial=0) > 1e-5:
         problems.append("faces not moved by their chart's map")
     old, new = corner_areas(old_corners), corner_areas(new_corners)
     expected = np.linalg.det(atlas.linear[chart]) * old
@@ -589,6 +583,12 @@ def group_problems(mesh: TexturedMesh, atlas: Atlas, group: int) -> list[str]:
     if align > 1 and np.abs(steps - np.round(steps)).max(initial=0) > 1e-6:
         problems.append(f"charts off the {align}-texel grid")
     return problems
+
+
+def mapped_corners(mesh: TexturedMesh, atlas: Atlas, faces: np.ndarray) -> np.ndarray:
+    """``(G, 3, 2)`` float64: the old corner UVs of ``faces`` moved by their chart's map."""
+    chart, old = atlas.chart_of_face[faces], mesh.corner_uvs()[faces].astype(np.float64)
+    return np.einsum("fij,fkj->fki", atlas.linear[chart], old) + atlas.offset[chart][:, None]
 
 
 def map_pieces(atlas: Atlas) -> np.ndarray:

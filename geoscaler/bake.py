@@ -25,7 +25,7 @@ from geoscaler.filters import resize_float
 from geoscaler.maps import resize_map
 from geoscaler.raster import rasterize
 from geoscaler.sizes import COLOR, NORMAL
-from geoscaler.texture import MipTexture, UVFootprint, fill_gutters, linear_to_srgb, srgb_to_linear
+from geoscaler.texture import MipTexture, UVFootprint, linear_to_srgb, srgb_to_linear
 
 
 def decode(pixels: np.ndarray, kind: str) -> torch.Tensor:
@@ -111,7 +111,7 @@ def bake(
     footprint = UVFootprint(old[:, 0], old[:, 1], *step_x.T, *step_y.T)
     values = torch.zeros(grid * grid, texture.channels)
     values[sample] = texture.sample(footprint).T
-    values = fill_gutters(values.view(grid, grid, -1), labels >= 0)
+    values = values.view(grid, grid, -1)
     if oversample > 1 and kind == COLOR:  # Lanczos on the sRGB values, as the baseline,
         values = stored(values, kind).numpy()  # in float: rounded to 8 bits once
         values = resize_float(values, (size, size), Image.Resampling.LANCZOS)

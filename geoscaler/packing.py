@@ -116,12 +116,6 @@ class Packed:
     texels_per_unit: float
     boxed: np.ndarray
 
-    def apply(self, charts: Charts) -> np.ndarray:
-        """``(K, 2)`` corner UVs moved by their chart's map."""
-        chart = charts.corner_chart
-        moved = np.einsum("kij,kj->ki", self.linear[chart], charts.corner_uvs)
-        return moved + self.offset[chart]
-
 
 def signed_areas(uvs: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """``(F,)`` float64 signed area of each face (positive: counter-clockwise)."""

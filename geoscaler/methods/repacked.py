@@ -242,19 +242,11 @@ def repacked_direct(
     end = _method_end(config, context, started)
     atlases = _timely_layouts(mesh, rule, renderer, config, validation, started, end, facts)
     own = Layout(renderer.relaid(mesh.uvs, memo), validation)
-    if not atlases:
-        facts["layout_used"] = "keep"
-        model = start_model(mesh, rule, own.renderer, None)
-        return own.fit(mesh, rule, model, config, context, started, facts)
     new = {
         name: _new_layout(mesh, atlas, renderer, validation, sizes, memo)
         for name, atlas in zip(NEW_LAYOUTS, atlases, strict=False)
     }
-    if mode == "repack" and len(new) == 1:
-        facts["layout_used"] = "repack"
-        model = start_model(mesh, rule, new["repack"].renderer, new["repack"].starts)
-        return new["repack"].fit(mesh, rule, model, config, context, started, facts)
-    layouts = {"keep": own, **new} if mode == "auto" else new
+    layouts = {"keep": own, **new} if mode == "auto" or not new else new
     return raced(mesh, rule, layouts, start_model, config, context, started, facts)
 
 
@@ -297,10 +289,10 @@ def raced(
     floor in every layout; a tie keeps the mesh's own). The winner's loop goes on from its
     validated best, with its training pool (growing again) and that best's scores as its
     start's, so what ships is never below the better trial on the validation views.
-    Fewer steps than layouts leave no room for a trial in each: the first layout goes on
-    alone (the mesh's own for ``auto``), so the steps asked for are never exceeded.
+    One layout, or fewer steps than layouts (no room for a trial in each, and the steps asked
+    for are never exceeded): the first goes on alone (the mesh's own for ``auto``).
     """
-    if config.steps < len(layouts):
+    if len(layouts) == 1 or config.steps < len(layouts):
         name, layout = next(iter(layouts.items()))
         facts["layout_used"] = name
         if layout.atlas is not None:
