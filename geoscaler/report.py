@@ -349,13 +349,15 @@ def _layout_lines(method: str, details: dict[str, Any]) -> list[str]:
     if details.get("race"):
         trials = []
         for name, trial in details["race"].items():
+            sets = trial.get("validation_sets", {})
+            others = "".join(f", {n} {sets[n]:.2f}" for n in ("near", "far") if n in sets)
             trials.append(
-                f"{LAYOUT_NAMES[name]} {trial['validation_psnr_fg']:.2f} dB after "
+                f"{LAYOUT_NAMES[name]} Q {trial['validation_psnr_fg']:.2f} dB{others} after "
                 f"{trial['steps']} step{'' if trial['steps'] == 1 else 's'}"
             )
             if trial["shortfall_db"] != 0:
                 trials[-1] += f" ({trial['shortfall_db']:+.2f} dB below a filter)"
-        lines.append(f"  trials on the validation's Q: {', '.join(trials)}; the better went on")
+        lines.append(f"  trials (validation PSNR-fg): {'; '.join(trials)}; the better on Q went on")
     lines += [f"  {name}: layout kept, {reason}" for name, reason in layout["kept"].items()]
     return lines
 

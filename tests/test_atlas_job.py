@@ -66,6 +66,9 @@ def test_auto_tries_both_layouts_and_the_better_validated_goes_on(cube):
     ranks = {name: (t["shortfall_db"], t["validation_psnr_fg"]) for name, t in race.items()}
     winner = max(ranks, key=lambda name: (ranks[name], name == "keep"))
     assert result.details["layout_used"] == winner
+    for trial in race.values():  # every set's mean, Q's the one ranked
+        assert set(trial["validation_sets"]) == {"Q", "near", "far"}
+        assert trial["validation_sets"]["Q"] == trial["validation_psnr_fg"]
     assert (result.uvs is not None) == (winner == "repack")
     assert result.details["steps"] == 2 + 2 + 8  # the winner goes on with what it has left
     # the continuation starts from the winner's best and validates it: never below it
@@ -306,13 +309,19 @@ def test_the_report_says_what_happened_to_the_layout():
     ]
     race = {
         "keep": {"steps": 60, "validation_psnr_fg": 30.0, "shortfall_db": 0.0},
-        "repack": {"steps": 55, "validation_psnr_fg": 30.5, "shortfall_db": -0.25},
+        "repack": {
+            "steps": 55,
+            "validation_psnr_fg": 30.5,
+            "validation_sets": {"Q": 30.5, "near": 29.25, "far": 31.0},
+            "shortfall_db": -0.25,
+        },
     }
     kept = {**repacked, "uv": "auto", "layout_used": "keep", "race": race}
     assert _layout_lines("direct", kept) == [
         "UV layout (auto): the mesh's own layout kept",
-        "  trials on the validation's Q: own layout 30.00 dB after 60 steps, repacked 30.50 dB "
-        "after 55 steps (-0.25 dB below a filter); the better went on",
+        "  trials (validation PSNR-fg): own layout Q 30.00 dB after 60 steps; repacked Q 30.50 "
+        "dB, near 29.25, far 31.00 after 55 steps (-0.25 dB below a filter); the better on Q "
+        "went on",
         "  b: layout kept, why",
     ]
     floored = {**repacked, "shipped": "lanczos"}

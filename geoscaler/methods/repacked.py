@@ -438,14 +438,14 @@ class _Trials:
 
 def _winner(trials: dict[str, MethodResult], layouts: dict[str, Layout], facts: dict) -> str:
     """The layout whose trial ranks first on the validation (a tie keeps the mesh's own);
-    each trial's steps, Q and shortfall go into ``facts["race"]``."""
-    ranks = {
-        n: layouts[n].validation.rank(t.details["validation_scores"]) for n, t in trials.items()
-    }
+    each trial's steps, Q, PSNR-fg on every set and shortfall go into ``facts["race"]``."""
+    scores = {name: trial.details["validation_scores"] for name, trial in trials.items()}
+    ranks = {name: layouts[name].validation.rank(scores[name]) for name in trials}
     facts["race"] = {
         name: {
             "steps": trial.details["steps"],
             "validation_psnr_fg": round(ranks[name][1], 4),
+            "validation_sets": {n: round(v, 4) for n, v in scores[name].items()},
             "shortfall_db": round(ranks[name][0], 4),
         }
         for name, trial in trials.items()
