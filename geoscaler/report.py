@@ -357,7 +357,10 @@ def _layout_lines(method: str, details: dict[str, Any]) -> list[str]:
             )
             if trial["shortfall_db"] != 0:
                 trials[-1] += f" ({trial['shortfall_db']:+.2f} dB below a filter)"
-        lines.append(f"  trials (validation PSNR-fg): {'; '.join(trials)}; the better on Q went on")
+            if trial.get("below_own_on"):
+                trials[-1] += f" (below the own layout on {' and '.join(trial['below_own_on'])})"
+        rule = "the best on Q not below the own layout" if "keep" in details["race"] else "the best"
+        lines.append(f"  trials (validation PSNR-fg): {'; '.join(trials)}; {rule} went on")
     lines += [f"  {name}: layout kept, {reason}" for name, reason in layout["kept"].items()]
     return lines
 

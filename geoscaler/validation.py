@@ -93,6 +93,12 @@ def paired_gap(candidate: Mapping[str, float], floor: Mapping[str, float], name:
     return float(gains.mean() - floor_margin(len(gains)) * error)
 
 
+def sets_below(candidate: Scores, reference: Scores) -> list[str]:
+    """The sets on which ``candidate`` is below ``reference`` beyond the noise: the reference's
+    :func:`paired_gap` over the candidate is positive (sets neither shows, nan, say nothing)."""
+    return [name for name in candidate if paired_gap(reference, candidate, name) > 0]
+
+
 def guard_cameras(distance: float, count: int = GUARD_VIEWS) -> list[Camera]:
     """``count`` validation cameras at ``distance``: a Fibonacci sphere of ``count`` directions,
     turned half a golden angle about the z axis so that none is a protocol view, in spread

@@ -75,6 +75,38 @@ def test_auto_tries_both_layouts_and_the_better_validated_goes_on(cube):
     assert result.details["validation_psnr_fg"] >= race[winner]["validation_psnr_fg"]
 
 
+def test_a_new_layout_below_the_own_one_on_any_set_stays_out_of_the_race():
+    from types import SimpleNamespace
+
+    from geoscaler.methods.registry import MethodResult
+    from geoscaler.methods.repacked import _winner
+    from geoscaler.validation import Scores
+
+    def trial(q: float, far: list[float]) -> MethodResult:
+        per_view = {"Q": np.array([q, q + 1, q - 1]), "far": np.array(far)}
+        scores = Scores({"Q": q, "far": float(np.mean(far))}, per_view)
+        return MethodResult([None], details={"steps": 5, "validation_scores": scores})
+
+    ranked_by_q = SimpleNamespace(rank=lambda scores: (0.0, scores["Q"]))
+    names = ("keep", "repack", "unaligned")
+    layouts = {n: SimpleNamespace(validation=ranked_by_q, atlas=None) for n in names}
+    own = trial(30.0, [50.0, 51.0, 49.0])
+    # The repacked trial leads on Q by 3 dB but loses 0.5 dB far in every view; the unaligned
+    # one leads by 1 dB and is level far away (+0.5, -0.5, 0): it goes on.
+    trials = {
+        "keep": own,
+        "repack": trial(33.0, [49.5, 50.5, 48.5]),
+        "unaligned": trial(31.0, [50.5, 50.5, 49.0]),
+    }
+    facts: dict = {}
+    assert _winner(trials, layouts, facts) == "unaligned"
+    below = {name: race["below_own_on"] for name, race in facts["race"].items()}
+    assert below == {"keep": [], "repack": ["far"], "unaligned": []}
+    # Below far, the only new layout: the own one goes on though it is 3 dB lower on Q.
+    del trials["unaligned"]
+    assert _winner(trials, layouts, facts) == "keep" == facts["layout_used"]
+
+
 def minifying(uv: str, steps: int):
     """``direct`` at 4x on a cube whose 256-texel output even the far views minify (64 pixels
     a side: a far sample spans more than a texel), so its charts are aligned."""
@@ -314,14 +346,15 @@ def test_the_report_says_what_happened_to_the_layout():
             "validation_psnr_fg": 30.5,
             "validation_sets": {"Q": 30.5, "near": 29.25, "far": 31.0},
             "shortfall_db": -0.25,
+            "below_own_on": ["far"],
         },
     }
     kept = {**repacked, "uv": "auto", "layout_used": "keep", "race": race}
     assert _layout_lines("direct", kept) == [
         "UV layout (auto): the mesh's own layout kept",
         "  trials (validation PSNR-fg): own layout Q 30.00 dB after 60 steps; repacked Q 30.50 "
-        "dB, near 29.25, far 31.00 after 55 steps (-0.25 dB below a filter); the better on Q "
-        "went on",
+        "dB, near 29.25, far 31.00 after 55 steps (-0.25 dB below a filter) (below the own "
+        "layout on far); the best on Q not below the own layout went on",
         "  b: layout kept, why",
     ]
     floored = {**repacked, "shipped": "lanczos"}

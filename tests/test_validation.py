@@ -22,6 +22,7 @@ from geoscaler.validation import (
     floor_margin,
     guard_cameras,
     paired_gap,
+    sets_below,
     validation_view_sets,
 )
 
@@ -160,6 +161,28 @@ def test_a_candidate_clears_a_set_by_its_per_view_gains_less_their_margin():
         paired_gap(Scores({"far": math.nan}, {"far": np.full(4, math.nan)}), floor, "far")
     )
     assert paired_gap({"far": 59.0}, floor, "far") == -1.0  # means alone: their difference
+
+
+def test_a_candidate_is_below_another_on_the_sets_where_that_one_clears_it():
+    views = {"Q": np.array([30.0, 31.0, 29.0]), "near": np.array([28.0, 29.0, 27.0])}
+    other = {**views, "far": np.array([40.0, 41.0, math.nan])}
+    reference = Scores({"Q": 30.0, "near": 28.0, "far": 40.5}, other)
+    # Better on Q by 1 dB in every view, 0.5 dB worse far in both views that show the mesh,
+    # near: gains +1, -1, 0 (their mean, 0, clears nothing).
+    candidate = Scores(
+        {"Q": 31.0, "near": 28.0, "far": 40.0},
+        {
+            "Q": np.array([31.0, 32.0, 30.0]),
+            "near": np.array([29.0, 28.0, 27.0]),
+            "far": np.array([39.5, 40.5, math.nan]),
+        },
+    )
+    assert sets_below(candidate, reference) == ["far"]
+    assert sets_below(reference, candidate) == ["Q"]
+    assert sets_below(reference, reference) == []  # paired with itself: a gap of 0 exactly
+    # Far, -1.5 and +0.5 dB: a mean of -0.5 the noise of two views does not clear.
+    noisy = Scores(candidate, {**candidate.per_view, "far": np.array([38.5, 41.5, math.nan])})
+    assert sets_below(noisy, reference) == []
 
 
 def test_views_still_to_cache_are_costed_at_the_mean_of_those_timed():

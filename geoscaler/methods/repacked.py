@@ -35,7 +35,7 @@ from geoscaler.render import Renderer
 from geoscaler.sizes import COLOR, SizeRule
 from geoscaler.texture import texture_to_linear
 from geoscaler.uvmodes import check_uv_mode
-from geoscaler.validation import MIN_FROZEN, Validation, validation_view_sets
+from geoscaler.validation import MIN_FROZEN, Validation, sets_below, validation_view_sets
 from geoscaler.views import ViewCache, training_views
 
 MAX_OVERSAMPLE = 4
@@ -284,11 +284,12 @@ def raced(
     counted from its own start (the first trial's views are cached in the whole run's caching
     window, which may run past its end). The first makes at most that share of the steps, the
     others as many as the first made (the first's steps are slower: they cache the views
-    all use), so that all are ranked after the same number of steps. Trials are
-    ranked as the loop ranks candidates (:meth:`Validation.rank`: the same frozen views and
-    floor in every layout; a tie keeps the mesh's own). The winner's loop goes on from its
-    validated best, with its training pool (growing again) and that best's scores as its
-    start's, so what ships is never below the better trial on the validation views.
+    all use), so that all are ranked after the same number of steps. Trials are ranked as
+    the loop ranks candidates (:meth:`Validation.rank`: the same frozen views and floor in
+    every layout; a tie keeps the mesh's own), a new layout whose trial is below the own one's
+    on some set being out (:func:`_winner`). The winner's loop goes on from its validated
+    best, with its training pool (growing again) and that best's scores as its start's, so
+    what ships is never below the better trial on the validation views.
     One layout, or fewer steps than layouts (no room for a trial in each, and the steps asked
     for are never exceeded): the first goes on alone (the mesh's own for ``auto``).
     """
@@ -437,20 +438,27 @@ class _Trials:
 
 
 def _winner(trials: dict[str, MethodResult], layouts: dict[str, Layout], facts: dict) -> str:
-    """The layout whose trial ranks first on the validation (a tie keeps the mesh's own);
-    each trial's steps, Q, PSNR-fg on every set and shortfall go into ``facts["race"]``."""
+    """The layout whose trial ranks first on the validation (a tie keeps the mesh's own) among
+    those not below the mesh's own layout's trial on any set beyond the noise
+    (:func:`~geoscaler.validation.sets_below`): a new layout better on Q but worse far away
+    does not replace the own one. Each trial's steps, Q, PSNR-fg on every set, shortfall and
+    the sets it is below the own layout on go into ``facts["race"]``."""
     scores = {name: trial.details["validation_scores"] for name, trial in trials.items()}
     ranks = {name: layouts[name].validation.rank(scores[name]) for name in trials}
+    own = scores.get("keep")
+    below = {n: [] if own is None or n == "keep" else sets_below(scores[n], own) for n in trials}
     facts["race"] = {
         name: {
             "steps": trial.details["steps"],
             "validation_psnr_fg": round(ranks[name][1], 4),
             "validation_sets": {n: round(v, 4) for n, v in scores[name].items()},
             "shortfall_db": round(ranks[name][0], 4),
+            "below_own_on": below[name],
         }
         for name, trial in trials.items()
     }
-    winner = max(ranks, key=lambda name: (ranks[name], name == "keep"))
+    eligible = [name for name in ranks if not below[name]]
+    winner = max(eligible, key=lambda name: (ranks[name], name == "keep"))
     facts["layout_used"] = winner
     if layouts[winner].atlas is not None:
         facts["layout"] = layouts[winner].atlas.facts
