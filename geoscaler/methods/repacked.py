@@ -286,8 +286,8 @@ def raced(
     others as many as the first made (the first's steps are slower: they cache the views
     all use), so that all are ranked after the same number of steps. Trials are ranked as
     the loop ranks candidates (:meth:`Validation.rank`: the same frozen views and floor in
-    every layout; a tie keeps the mesh's own), a new layout whose trial is below the own one's
-    on some set being out (:func:`_winner`). The winner's loop goes on from its validated
+    every layout; a tie keeps the mesh's own); a new layout whose trial is below the own one's
+    on some set is out (:func:`_winner`). The winner's loop goes on from its validated
     best, with its training pool (growing again) and that best's scores as its start's, so
     what ships is never below the better trial on the validation views.
     One layout, or fewer steps than layouts (no room for a trial in each, and the steps asked
