@@ -150,9 +150,13 @@ def test_fewer_steps_than_layouts_run_the_first_layout_alone(cube):
 
 def test_the_race_reports_one_run_of_steps_and_one_end(cube):
     events = []
-    raced(cube, steps=5, on_event=events.append)
+    result = raced(cube, steps=5, on_event=events.append)
     steps = [event.step for event in events if event.phase == "step"]
     assert steps == list(range(1, 7))  # trials of 1 step each, then the winner's 4 left
+    # The shipped candidate's step is the one its validation was reported at (0: a start).
+    best = result.details["validation_psnr_fg"]
+    found = [e.step for e in events if e.phase == "validation" and e.validation_psnr == best]
+    assert result.details["best_step"] == (found[0] if found else 0)
     assert {event.total_steps for event in events} == {5}
     assert [event.phase for event in events].count("done") == 1
     assert events[-1].phase == "done"

@@ -290,8 +290,10 @@ def raced(
     on some set is out (:func:`_winner`). The winner's loop goes on from its validated
     best, with its training pool (growing again) and that best's scores as its start's, so
     what ships is never below the better trial on the validation views.
-    One layout, or fewer steps than layouts (no room for a trial in each, and the steps asked
-    for are never exceeded): the first goes on alone (the mesh's own for ``auto``).
+    The winner makes the steps asked, its trial's counted; the losers' trial steps come on top
+    (the result's ``steps`` and ``best_step`` count from the race's first step). One layout,
+    or fewer steps than layouts (no room for a trial in each): the first goes on alone (the
+    mesh's own for ``auto``).
     """
     if len(layouts) == 1 or config.steps < len(layouts):
         name, layout = next(iter(layouts.items()))
@@ -310,6 +312,7 @@ def raced(
     winner = _winner(race.results, layouts, facts)
     first_step = next(iter(race.results.values())).details["first_step_seconds"]
     best, layout, model = race.results[winner], layouts[winner], race.models[winner]
+    best_step = best.details["best_step"]
     steps_left = config.steps - best.details["steps"]
     finishing = FINISH_MARGIN * layout.validation.seconds_needed(2, False)
     no_time = end is not None and time.perf_counter() + finishing >= end
@@ -338,7 +341,9 @@ def raced(
         start_scores=scores,
     )
     result.details["steps"] += race.steps
-    result.details["first_step_seconds"] = first_step
+    details = result.details  # the continuation's best counted on from the race's steps
+    details["best_step"] = details["best_step"] + race.steps if details["best_step"] else best_step
+    details["first_step_seconds"] = first_step
     return result
 
 
@@ -431,6 +436,8 @@ class _Trials:
         phase = _Phase(self.config, self.context, self.started, self.steps, first, last=False)
         pool = training_views(layout.renderer, self.cameras, layout.validation.sizes, True)
         result = phase.fit(mesh, rule, layout, model, deadline, 0.0, self.steps_each, pool=pool)
+        if result.details["best_step"]:  # counted from the race's first step (0: the start)
+            result.details["best_step"] += self.steps
         self.results[name], self.models[name], self.pools[name] = result, model, pool
         self.steps += result.details["steps"]
         if first:
