@@ -103,9 +103,9 @@ def test_a_session_in_the_app(gui_runner, tmp_path):
         time_budget=600.0,
         evaluation=Evaluation(image_size=128, views=(0, 1)),
         # Validations 25 steps apart, and no backtracking (it validates again one step after a
-        # candidate the floor's margin rejects): two validations never fall between two frames
-        # of the software renderer, so a frame plots exactly the first one (with 5 steps apart
-        # a busy machine once missed it; backtracking: test_optimize.py).
+        # candidate the floor's margin rejects): frames of the software renderer come many
+        # times in 25 steps even on a busy machine, so one plots exactly the first validation
+        # (5 steps apart, a busy machine once missed it; backtracking: test_optimize.py).
         optimize={"pool_views": 4, "validate_every": 25, "backtrack": None},
     )
     app = main.App(None, tmp_path / "out", settings, demo=lambda: demo_mesh(16, 512))
