@@ -341,9 +341,8 @@ def raced(
         start_scores=scores,
     )
     result.details["steps"] += race.steps
-    details = result.details  # the continuation's best counted on from the race's steps
-    details["best_step"] = details["best_step"] + race.steps if details["best_step"] else best_step
-    details["first_step_seconds"] = first_step
+    result.details["best_step"] = result.details["best_step"] or best_step  # 0: its start
+    result.details["first_step_seconds"] = first_step
     return result
 
 
@@ -436,8 +435,6 @@ class _Trials:
         phase = _Phase(self.config, self.context, self.started, self.steps, first, last=False)
         pool = training_views(layout.renderer, self.cameras, layout.validation.sizes, True)
         result = phase.fit(mesh, rule, layout, model, deadline, 0.0, self.steps_each, pool=pool)
-        if result.details["best_step"]:  # counted from the race's first step (0: the start)
-            result.details["best_step"] += self.steps
         self.results[name], self.models[name], self.pools[name] = result, model, pool
         self.steps += result.details["steps"]
         if first:
@@ -508,7 +505,8 @@ class _Phase:
         **handover: Any,
     ) -> MethodResult:
         """:meth:`Layout.fit` for at most ``steps`` steps, its loop ending by ``loop_end``
-        (``time.perf_counter()``; None: no budget) with ``reserve`` seconds after it."""
+        (``time.perf_counter()``; None: no budget) with ``reserve`` seconds after it; its
+        ``best_step`` counted on from the race's steps, as its events are (0: its start)."""
         now = time.perf_counter()
         start = self.started if self.first else now
         config = replace(self.config, steps=steps)
@@ -519,7 +517,10 @@ class _Phase:
                 config = replace(config, time_budget=loop_end + reserve - now)
         on_event = self._events(start - self.started)
         context = replace(self.context, reserve=reserve, on_event=on_event)
-        return layout.fit(mesh, rule, model, config, context, start, facts or {}, **handover)
+        result = layout.fit(mesh, rule, model, config, context, start, facts or {}, **handover)
+        if result.details["best_step"]:
+            result.details["best_step"] += self.steps_before
+        return result
 
     def _events(self, seconds_before: float) -> Any:
         """The context's ``on_event`` seeing the race's steps and seconds: this phase's counted
