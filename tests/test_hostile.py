@@ -142,11 +142,21 @@ def set_path(tree: dict, keys: str, value) -> None:
     tree[int(last) if last.isdigit() else last] = value
 
 
-def chain(count: int) -> Callable[[dict], None]:
-    def edit(doc: dict) -> None:
-        doc["nodes"] = [{"children": [i + 1]} for i in range(count)] + [{"mesh": 0}]
+def turning_chain(doc: dict) -> None:
+    """The quad hung on 10,000 nested nodes: each moves +1 along its parent's x, nodes 2500,
+    5000 and 7500 also turn a quarter turn about z, and the last, scaled by 2, holds the mesh.
+    The moves sum to (2501 - 2500, 2500 - 2499) = (1, 1), in a frame turned three quarters."""
+    quarter = [0.0, 0.0, np.sqrt(0.5), np.sqrt(0.5)]
+    doc["nodes"] = [{"children": [i + 1], "translation": [1, 0, 0]} for i in range(9999)]
+    for level in (2500, 5000, 7500):
+        doc["nodes"][level]["rotation"] = quarter
+    doc["nodes"].append({"mesh": 0, "translation": [1, 0, 0], "scale": [2, 2, 2]})
+    doc["scenes"] = [{"nodes": [0]}]
 
-    return edit
+
+CHAIN_POSITIONS = np.float64([[1, 1, 0], [1, -1, 0], [3, -1, 0], [3, 1, 0]])
+"""The quad's corners (0, 0), (1, 0), (1, 1), (0, 1) placed by :func:`turning_chain`: scaled
+by 2, turned by (x, y) -> (y, -x), moved to (1, 1)."""
 
 
 # ----------------------------------------------------------------------------- the corpus
@@ -285,7 +295,16 @@ def gltf_cases() -> list[Case]:
          {"children": [0], "mesh": 0}])), "is its own ancestor"),
         ("node-two-parents", edited(lambda d: d.__setitem__("nodes", [{"children": [2]},
          {"children": [2]}, {"mesh": 0}])), "gives node 2 a second parent"),
-        ("node-depth-100", edited(chain(100)), "deeper than 64 levels"),
+        ("node-twice-a-child", edited(lambda d: d.__setitem__("nodes", [{"children": [1, 1]},
+         {"mesh": 0}])), "nodes[0].children lists node 1 twice"),
+        ("scene-lists-a-child", edited(lambda d: d.__setitem__("nodes", [{"children": [1]},
+         {"mesh": 0}]) or d["scenes"][0].__setitem__("nodes", [0, 1])),
+         "scenes[0].nodes lists node 1, a child of node 0, not a root node"),
+        ("scene-lists-a-root-twice", edited(lambda d: d["scenes"][0].__setitem__("nodes",
+         [0, 0])), "scenes[0].nodes lists node 0 twice"),
+        ("node-cycle-below-a-root", edited(lambda d: d.__setitem__("nodes", [{"mesh": 0},
+         {"children": [2]}, {"children": [3]}, {"children": [1]}])),
+         "nodes[1] is its own ancestor (a cycle)"),
         ("index-past-vertices", edited(lambda d: None, indices=np.uint32([0, 1, 2, 0, 2, 7])),
          "has index 7, past its 4 vertices"),
         ("gltf-bin-missing", {"mesh.gltf": as_gltf()["mesh.gltf"]}, "was not found"),
@@ -508,6 +527,33 @@ def test_hostile_input_is_refused_in_one_line(case: Case, tmp_path, capsys, monk
     assert "Traceback" not in captured.err + captured.out
     assert snapshot(tmp_path) == before  # inputs unchanged, nothing written anywhere
     assert not Path("/proc/geoscaler.png").exists() and not Path("/sys/r.json").exists()
+
+
+# ----------------------------------------------------------------------------- deep node graphs
+
+
+def test_a_10000_level_node_chain_loads_in_place(tmp_path):
+    """The glTF specification sets no depth limit; the node graph is walked without recursion
+    and every level's transform is applied."""
+    doc, blob = quad()
+    turning_chain(doc)
+    (tmp_path / "mesh.glb").write_bytes(glb(doc, blob))
+    mesh = load_mesh(tmp_path / "mesh.glb")
+    corners = {tuple(uv): p for uv, p in zip(np.round(mesh.uvs, 6), mesh.positions, strict=True)}
+    placed = [corners[uv] for uv in [(0, 0), (1, 0), (1, 1), (0, 1)]]
+    np.testing.assert_allclose(placed, CHAIN_POSITIONS, atol=1e-9)
+
+
+def test_a_10000_level_node_chain_downsamples(tmp_path, capsys):
+    doc, blob = quad()
+    turning_chain(doc)
+    (tmp_path / "mesh.glb").write_bytes(glb(doc, blob))
+    out = tmp_path / "small.glb"
+    argv = [a.replace("{in}", str(tmp_path)) for a in downsample("mesh.glb", str(out))]
+    assert run([*argv, "--scale", "2"]) == 0, capsys.readouterr().err
+    small = load_mesh(out)
+    assert small.materials[0].base_color_texture.shape == (2, 4, 3)
+    np.testing.assert_allclose(np.unique(small.positions, axis=0), CHAIN_POSITIONS[[1, 0, 2, 3]])
 
 
 # ----------------------------------------------------------------------------- what is written

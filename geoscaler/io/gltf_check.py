@@ -6,8 +6,9 @@ own child recurses. Here the document is held to the specification first, one re
 mistake, each naming where in the file it is (``accessors[2]``, ``nodes[0].children``):
 
 - :func:`check_structure`: every array is a list of objects, every index points at an existing
-  item, the node graph is a forest no deeper than :data:`MAX_NODE_DEPTH`, transforms and
-  material factors are finite numbers of the right count and range, enums are enums;
+  item, the node graph is a forest (walked without recursion, so any depth is read) whose roots
+  each scene lists once, transforms and material factors are finite numbers of the right count
+  and range, enums are enums;
 - :func:`check_data`: buffers hold the bytes they claim, buffer views fit their buffers,
   accessors their views (strides included), the attributes a primitive reads have data (not
   Draco- or meshopt-compressed, not sparse) of the right type and equal counts, and its indices
@@ -27,9 +28,6 @@ import numpy as np
 from geoscaler.errors import GeoscalerError
 
 from .paths import resolve_reference
-
-MAX_NODE_DEPTH = 64
-"""Deepest node hierarchy accepted (scene roots are depth 1)."""
 
 COMPONENT_SIZES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
 """Accessor ``componentType`` -> bytes per component."""
@@ -185,7 +183,7 @@ def _dict(value: Any, path: Path, where: str) -> list[tuple[str, Any]]:
 
 
 def _check_nodes(doc: dict, path: Path, ref: _Refs) -> None:
-    """Indices, transforms, one parent per node, no cycle, depth <= MAX_NODE_DEPTH."""
+    """Indices, transforms, one parent per node, no cycle; each scene lists roots, once."""
     nodes = _items(doc, "nodes")
     parent: dict[int, int] = {}
     for n, node in enumerate(nodes):
@@ -196,20 +194,45 @@ def _check_nodes(doc: dict, path: Path, ref: _Refs) -> None:
             ref.index(child, "nodes", f"{where}.children")
             if child == n:
                 raise _refuse(path, f"{where}.children", "lists the node itself (a cycle)")
+            if parent.get(child) == n:
+                raise _refuse(path, f"{where}.children", f"lists node {child} twice")
             if child in parent:
                 raise _refuse(path, f"{where}.children", f"gives node {child} a second parent")
             parent[child] = n
         for key, count in (("matrix", 16), ("translation", 3), ("rotation", 4), ("scale", 3)):
             if key in node:
                 ref.numbers(node[key], count, f"{where}.{key}")
-    for start in range(len(nodes)):
-        depth, node = 1, start
-        while node in parent:
-            node, depth = parent[node], depth + 1
-            if node == start:
-                raise _refuse(path, f"nodes[{start}]", "is its own ancestor (a cycle)")
-            if depth > MAX_NODE_DEPTH:
-                raise _refuse(path, f"nodes[{start}]", f"is deeper than {MAX_NODE_DEPTH} levels")
+    _check_acyclic(nodes, parent, path)
+    for s, scene in enumerate(_items(doc, "scenes")):
+        listed: set[int] = set()
+        for node in scene.get("nodes", []):
+            where = f"scenes[{s}].nodes"
+            if node in parent:
+                problem = f"lists node {node}, a child of node {parent[node]}, not a root node"
+                raise _refuse(path, where, problem)
+            if node in listed:
+                raise _refuse(path, where, f"lists node {node} twice")
+            listed.add(node)
+
+
+def _check_acyclic(nodes: list[dict], parent: dict[int, int], path: Path) -> None:
+    """Refuse a cycle. With one parent per node, a walk down from the nodes without a parent
+    reaches every node exactly once unless some hang on a cycle; the walk keeps its own stack,
+    so a chain of any depth is checked in time and memory linear in the number of nodes."""
+    reached = [False] * len(nodes)
+    stack = [n for n in range(len(nodes)) if n not in parent]
+    while stack:
+        n = stack.pop()
+        reached[n] = True
+        stack += nodes[n].get("children", [])
+    unreached = next((n for n, done in enumerate(reached) if not done), None)
+    if unreached is None:
+        return
+    seen, node = set(), unreached
+    while node not in seen:  # every unreached node has an unreached parent: this loops
+        seen.add(node)
+        node = parent[node]
+    raise _refuse(path, f"nodes[{node}]", "is its own ancestor (a cycle)")
 
 
 def _check_accessor_fields(accessor: dict, path: Path, where: str, ref: _Refs) -> None:
