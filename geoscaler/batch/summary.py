@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from geoscaler.io import write_atomically
+from geoscaler.io.atomic import write_files
 from geoscaler.report import dumps, json_safe
 
 from .assets import Asset
@@ -106,13 +106,12 @@ def markdown_summary(document: dict[str, Any]) -> str:
 
 
 def write_summary(out_dir: Path, document: dict[str, Any]) -> list[Path]:
-    """``summary.csv`` (the total last), ``summary.json`` and ``summary.md``, atomically."""
+    """``summary.csv`` (the total last), ``summary.json`` and ``summary.md``, atomically as a
+    set: where one cannot be written (no space left...), WriteError names it and none is."""
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=COLUMNS, lineterminator="\n")
     writer.writeheader()
     writer.writerows([*document["assets"], document["total"]])
     texts = [buffer.getvalue(), dumps(json_safe(document)) + "\n", markdown_summary(document)]
-    paths = [out_dir / name for name in SUMMARY_FILES]
-    for path, text in zip(paths, texts, strict=True):
-        write_atomically(path, lambda tmp, text=text: tmp.write_text(text, encoding="utf-8"))
-    return paths
+    contents = {name: text.encode("utf-8") for name, text in zip(SUMMARY_FILES, texts, strict=True)}
+    return write_files(out_dir, contents)  # all three, or none (the earlier ones kept)

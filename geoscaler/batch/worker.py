@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from geoscaler.downsampling import prepare
-from geoscaler.errors import GeoscalerError
+from geoscaler.errors import GeoscalerError, WriteError
 from geoscaler.io import check_outputs
 from geoscaler.process import configure_process
 from geoscaler.protocol import PROTOCOL_EVALUATION, Evaluation
@@ -95,12 +95,16 @@ def run_asset(task: AssetTask) -> AssetResult:
             "host": socket.gethostname(),
         }
         staged_report = staging / asset.report.name
-        staged_report.write_text(dumps(document) + "\n", encoding="utf-8")
+        try:
+            staged_report.write_text(dumps(document) + "\n", encoding="utf-8")
+        except OSError as error:
+            raise WriteError(staged_report, error) from error
         staged = [*job.output_files, staged_report]  # the main file, then the report, last
-        for source, final in zip(staged, [*finals, asset.report], strict=True):
-            final.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(source, final)
+        move_into_place(staged, [*finals, asset.report])
         result.status, result.document = DONE, document
+    except WriteError as error:  # named where the user looks for it, not in the staging folder
+        moved = error if staging is None else error.moved(staging, asset.output.parent)
+        result.error = one_line(str(moved), asset.path)
     except GeoscalerError as error:
         result.error = one_line(str(error), asset.path)
     except Exception as error:  # one bad asset must not stop the batch
@@ -111,6 +115,21 @@ def run_asset(task: AssetTask) -> AssetResult:
             shutil.rmtree(staging, ignore_errors=True)
         result.seconds = time.perf_counter() - start
     return result
+
+
+def move_into_place(staged: list[Path], finals: list[Path]) -> None:
+    """Rename each staged file to its final path, in order; when one fails, the ones already
+    moved are removed again (an asset is there whole or not at all) and WriteError names it."""
+    moved: list[Path] = []
+    try:
+        for source, final in zip(staged, finals, strict=True):
+            final.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(source, final)
+            moved.append(final)
+    except OSError as error:
+        for path in moved:
+            path.unlink(missing_ok=True)
+        raise WriteError(finals[len(moved)], error) from error
 
 
 def one_line(message: str, path: Path) -> str:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from geoscaler.errors import GeoscalerError
+from geoscaler.errors import GeoscalerError, WriteError
 
 
 def write_atomically(path: str | Path, write: Callable[[Path], None]) -> Path:
@@ -28,7 +28,7 @@ def write_atomically(path: str | Path, write: Callable[[Path], None]) -> Path:
     try:
         fd, tmp_name = tempfile.mkstemp(prefix=".geoscaler-", suffix=".tmp", dir=path.parent)
     except OSError as exc:
-        raise _write_error(path, exc) from exc
+        raise WriteError(path, exc) from exc
     os.close(fd)
     tmp = Path(tmp_name)
     try:
@@ -37,18 +37,11 @@ def write_atomically(path: str | Path, write: Callable[[Path], None]) -> Path:
         os.replace(tmp, path)
     except OSError as exc:
         tmp.unlink(missing_ok=True)
-        raise _write_error(path, exc) from exc
+        raise WriteError(path, exc) from exc
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
     return path
-
-
-def _write_error(path: Path, exc: OSError) -> GeoscalerError:
-    return GeoscalerError(
-        f"{path}: writing it failed ({exc.strerror or exc}); check free space and "
-        "permissions, or choose another output folder."
-    )
 
 
 def _umask() -> int:
@@ -77,6 +70,12 @@ def write_files(folder: Path, files: dict[str, bytes]) -> list[Path]:
     -------
     list of Path
         The files written, in the order of ``files``.
+
+    Raises
+    ------
+    WriteError
+        A file could not be written or renamed (no space left, no permission...); it names
+        that file in ``folder``, and none of the set is left there.
     """
     try:
         staging = Path(tempfile.mkdtemp(prefix=".geoscaler-", dir=folder))
@@ -85,17 +84,17 @@ def write_files(folder: Path, files: dict[str, bytes]) -> list[Path]:
             f"{folder}: cannot write into this folder ({exc.strerror}); choose a writable "
             "output folder."
         ) from exc
+    name, written = next(iter(files), ""), []
     try:
         for name, data in files.items():
             (staging / name).write_bytes(data)
-        written = []
         for name in files:
             os.replace(staging / name, folder / name)
             written.append(folder / name)
         return written
     except OSError as exc:
-        raise GeoscalerError(
-            f"{folder}: writing the output failed ({exc}); check free space and permissions."
-        ) from exc
+        for path in written:  # the set appears whole or not at all
+            path.unlink(missing_ok=True)
+        raise WriteError(folder / name, exc) from exc
     finally:
         shutil.rmtree(staging, ignore_errors=True)
