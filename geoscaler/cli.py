@@ -214,7 +214,7 @@ def cmd_compare(args: argparse.Namespace) -> None:
     pictures = {scale: f"{mesh_path.stem}_compare_x{scale}.png" for scale in scales}
     names = [json_name, *pictures.values()]
     if args.out:
-        prepare_out_dir(args.out, names, args.force, [mesh_path])
+        prepare_out_dir(args.out, names, args.force, [mesh_path], probe=False)
     mesh = load_mesh(mesh_path)
     if args.out:  # again, now that every file the mesh was read from is known
         prepare_out_dir(args.out, names, args.force, mesh.source_files)

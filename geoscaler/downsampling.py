@@ -147,11 +147,12 @@ def prepare(
             "smaller, so there is nothing for the method to do; give --scale or --max-size "
             "for every class (e.g. --scale 4) or for color (--scale color=2)"
         )
-    planned = output_files(with_lossless_base_colors(mesh), output, image_format=image_format)
-    files = check_outputs(planned, force=force, inputs=mesh.source_files)
+    files = output_files(with_lossless_base_colors(mesh), output, image_format=image_format)
     if report_path is not None:
-        check_output(report_path, force=force, inputs=mesh.source_files)
         _check_distinct(report_path, files, "a file of the output mesh")
+    reports = [] if report_path is None else [report_path]
+    # The last check before long work: the only one that tries a file in the folders.
+    check_outputs([*files, *reports], force=force, inputs=mesh.source_files, probe=True)
     return Job(
         mesh_path,
         mesh,

@@ -30,7 +30,7 @@ from geoscaler.errors import GeoscalerError
 from geoscaler.events import Controller, ProgressEvent
 from geoscaler.filters import output_sizes
 from geoscaler.io import (
-    check_output,
+    check_outputs,
     prepare_folder,
 )
 from geoscaler.maps import resize_alpha
@@ -426,11 +426,18 @@ def _run(
 
 
 def prepare_out_dir(
-    out: str | Path, names: Sequence[str], force: bool, inputs: Sequence[Path]
+    out: str | Path, names: Sequence[str], force: bool, inputs: Sequence[Path], probe: bool = True
 ) -> list[Path]:
-    """Create the folder ``out`` if needed and check every output file in it before work."""
-    folder = prepare_folder(out)
-    return [check_output(folder / name, force=force, inputs=inputs) for name in names]
+    """Check every output file in the folder ``out`` before work. The last check before work
+    (``probe``) creates the folder if needed and tries a file in it
+    (:func:`geoscaler.io.check_outputs`); an earlier one only looks, and passes a folder that
+    does not exist yet, so a command refused in between leaves nothing behind."""
+    folder = Path(out)
+    paths = [folder / name for name in names]
+    if not probe and not folder.exists():
+        return paths  # nothing can be in the way in it; the last check creates it
+    prepare_folder(folder)
+    return check_outputs(paths, force=force, inputs=inputs, probe=probe)
 
 
 @dataclass

@@ -253,6 +253,14 @@ def test_cli_missing_mesh_exits_2(tmp_path, capsys):
     assert "no such file" in capsys.readouterr().err
 
 
+def test_a_refused_compare_leaves_no_out_folder_behind(tmp_path, capsys):
+    """The --out folder is made by the last check before work, once the mesh has loaded."""
+    out = tmp_path / "new"
+    assert main(["compare", str(tmp_path / "missing.glb"), "--out", str(out)]) == 2
+    assert "no such file" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_cli_refuses_existing_outputs_without_force(glb, tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()

@@ -9,6 +9,7 @@ views.
 import json
 import os
 import signal
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -224,6 +225,26 @@ def test_an_unwritable_folder_is_refused(glb, tmp_path, no_work, monkeypatch, ca
     assert main(["downsample", str(glb), "-o", str(locked / "out.glb")]) == 2
     err = capsys.readouterr().err
     assert "is not writable" in err and "Traceback" not in err
+
+
+def test_a_folder_that_only_looks_writable_is_refused_before_work(
+    glb, tmp_path, no_work, monkeypatch, capsys
+):
+    """Where ``os.access`` says yes but the file system makes no file (here an immutable
+    folder, ``os.access`` overridden), the last check before work tries one and refuses."""
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    if subprocess.run(["chattr", "+i", str(locked)], capture_output=True).returncode:
+        pytest.skip("chattr +i is not available here")
+    monkeypatch.setattr(paths.os, "access", lambda p, mode: True)
+    try:
+        status = main(["downsample", str(glb), "-o", str(locked / "out.glb")])
+    finally:
+        subprocess.run(["chattr", "-i", str(locked)], check=True)
+    assert status == 2
+    err = capsys.readouterr().err
+    assert f"folder {locked} is not writable (Operation not permitted)" in err
+    assert list(locked.iterdir()) == []
 
 
 def test_existing_side_files_of_an_obj_output_are_refused(glb, tmp_path, no_work, capsys):

@@ -10,11 +10,15 @@ hundred seeded mutations of valid GLB and OBJ files to ``info`` and accepts only
 from __future__ import annotations
 
 import base64
+import ctypes
 import json
 import os
 import random
 import re
+import shutil
 import struct
+import subprocess
+import sys
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -27,7 +31,7 @@ from mesh_support import QUAD_OBJ, TEXTURE, one_primitive_scene, png_bytes, two_
 from PIL import Image
 
 from geoscaler.cli import main
-from geoscaler.io import load_mesh, save_mesh
+from geoscaler.io import check_outputs, load_mesh, save_mesh
 
 QUICK_OPTIMIZE = {"pool_views": 1, "views_per_step": 1, "validate_every": 1, "warmup_steps": 1}
 MTL = b"newmtl mat\nmap_Kd tex.png\n"
@@ -444,6 +448,17 @@ def path_cases() -> list[Case]:
         Case("downsample-report-into-sys", obj(),
              downsample("mesh.obj", "{out}/s.glb", "--report", "/sys/r.json"),
              "is a system folder"),
+        Case("downsample-report-onto-mtl", obj(),
+             downsample("mesh.obj", "{out}/s.glb", "--report", "{in}/mesh.mtl", "--force"),
+             "mesh.mtl: refusing to overwrite the input file"),
+        Case("downsample-mtl-onto-input-mtl", obj(QUAD_OBJ.replace("mesh.mtl", "s.mtl"),
+             ), downsample("mesh.obj", "{in}/s.obj", "--force"),
+             "s.mtl: refusing to overwrite the input file",
+             lambda i, o: (i / "mesh.mtl").rename(i / "s.mtl")),
+        Case("downsample-bin-onto-input-bin", as_gltf(lambda d: d["buffers"][0].__setitem__(
+             "uri", "s.bin")), downsample("mesh.gltf", "{in}/s.gltf", "--force"),
+             "s.bin: refusing to overwrite the input file",
+             lambda i, o: (i / "mesh.bin").rename(i / "s.bin")),
         Case("downsample-side-files-too-long", obj(),
              downsample("mesh.obj", f"{{out}}/{'b' * 248}.gltf"), "too long for the file system"),
     ]  # fmt: skip
@@ -497,6 +512,43 @@ def snapshot(folder: Path) -> dict[str, bytes | str]:
     return out
 
 
+class FolderWatch:
+    """What inotify saw change in some folders (a file made, written, renamed or removed, an
+    attribute set), transient changes included: a file made and removed at once still shows."""
+
+    MASK = 0x2 | 0x4 | 0x8 | 0x40 | 0x80 | 0x100 | 0x200 | 0x400 | 0x800
+    """IN_MODIFY, IN_ATTRIB, IN_CLOSE_WRITE, IN_MOVED_FROM/TO, IN_CREATE, IN_DELETE(_SELF),
+    IN_MOVE_SELF: every event but reading and opening."""
+
+    def __init__(self, folders: list[Path]):
+        self.libc = ctypes.CDLL(None, use_errno=True)
+        self.fd = self.libc.inotify_init1(os.O_NONBLOCK | os.O_CLOEXEC)
+        assert self.fd >= 0, os.strerror(ctypes.get_errno())
+        self.folders = {}
+        for folder in folders:
+            watch = self.libc.inotify_add_watch(self.fd, os.fsencode(folder), self.MASK)
+            assert watch >= 0, os.strerror(ctypes.get_errno())
+            self.folders[watch] = folder
+
+    def changes(self) -> list[str]:
+        """``FOLDER/NAME MASK`` of every change since the watch began; ends the watch."""
+        data = b""
+        try:
+            while True:
+                data += os.read(self.fd, 65536)
+        except BlockingIOError:
+            pass
+        finally:
+            os.close(self.fd)
+        out, at = [], 0
+        while at < len(data):
+            watch, mask, _, size = struct.unpack_from("iIII", data, at)
+            name = data[at + 16 : at + 16 + size].rstrip(b"\0").decode(errors="replace")
+            out.append(f"{self.folders.get(watch)}/{name} {mask:#x}")
+            at += 16 + size
+        return out
+
+
 def run(argv: list[str]) -> int:
     return main(argv, evaluation=ONE_VIEW, optimize=QUICK_OPTIMIZE)
 
@@ -519,7 +571,9 @@ def test_hostile_input_is_refused_in_one_line(case: Case, tmp_path, capsys, monk
     monkeypatch.chdir(tmp_path)  # a file written to a relative path would show up here
     before = snapshot(tmp_path)
     argv = [a.replace("{in}", str(inputs)).replace("{out}", str(out)) for a in case.argv]
+    watch = FolderWatch([tmp_path, inputs, out])
     status = run(argv)
+    assert watch.changes() == []  # not even a file made and removed at once
     captured = capsys.readouterr()
     assert status == 2, captured.out + captured.err
     assert captured.err.startswith("geoscaler: error: ") and captured.err.count("\n") == 1
@@ -527,6 +581,72 @@ def test_hostile_input_is_refused_in_one_line(case: Case, tmp_path, capsys, monk
     assert "Traceback" not in captured.err + captured.out
     assert snapshot(tmp_path) == before  # inputs unchanged, nothing written anywhere
     assert not Path("/proc/geoscaler.png").exists() and not Path("/sys/r.json").exists()
+
+
+STRACE = shutil.which("strace")
+WRITE_CALL = re.compile(
+    r"\bopen(at)?\(.*O_(CREAT|TMPFILE|WRONLY|RDWR|TRUNC)"
+    r"|\b(mkdir|rmdir|rename|unlink|link|symlink|creat|truncate|chmod|chown|utime)\w*\("
+)
+"""A system call that makes, changes or removes something, as ``strace`` prints it."""
+
+
+def traced_changes(argv: list[str], folder: Path) -> tuple[int, str, list[str]]:
+    """The exit status and stderr of ``python argv``, and every system call of it (child
+    processes included) that makes, changes or removes something in ``folder``, as
+    ``strace -f -e trace=file`` shows it."""
+    log = folder.parent / f"{folder.name}.strace"
+    command = [STRACE, "-f", "-qq", "-e", "trace=file", "-o", str(log), sys.executable, *argv]
+    done = subprocess.run(command, cwd=folder.parent, capture_output=True, text=True, timeout=300)
+    inside = (f'"{folder}"', f'"{folder}/')
+    lines = log.read_text(errors="replace").splitlines()
+    changes = [line for line in lines if any(i in line for i in inside) and WRITE_CALL.search(line)]
+    return done.returncode, done.stderr, changes
+
+
+@pytest.mark.skipif(STRACE is None, reason="strace is not installed")
+def test_a_refused_output_is_never_touched_not_even_for_a_moment(tmp_path):
+    """``strace`` shows no file made, written or removed in the input folder by a refused
+    command (a probe made and removed at once included); the last check of a command that
+    goes on, asked here directly, shows as an unnamed file (``O_TMPFILE``), nothing else."""
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    files = obj(QUAD_OBJ.replace("mesh.mtl", "s.mtl"))
+    files["s.mtl"] = files.pop("mesh.mtl")
+    for name, data in files.items():
+        (inputs / name).write_bytes(data)
+    before = snapshot(inputs)
+    cli = ["-m", "geoscaler.cli"]
+    refused = [
+        ["render", "mesh.obj", "-o", "tex.png", "--force"],
+        ["downsample", "mesh.obj", "-o", "out.glb", "--report", "s.mtl", "--force"],
+        ["downsample", "mesh.obj", "-o", "s.obj", "--force"],  # its s.mtl is the input's
+    ]
+    for argv in refused:
+        argv = [str(inputs / a) if "." in a else a for a in argv]
+        status, err, changes = traced_changes([*cli, *argv], inputs)
+        assert status == 2 and "refusing to overwrite the input file" in err, err
+        assert changes == [], argv
+        assert snapshot(inputs) == before
+    probe = "import sys; from geoscaler.io import check_output as c; c(sys.argv[1], force=False, "
+    probe += "probe=True)"
+    status, err, changes = traced_changes(["-c", probe, str(inputs / "new.glb")], inputs)
+    assert status == 0, err
+    assert len(changes) == 1 and "O_TMPFILE" in changes[0] and f'"{inputs}"' in changes[0]
+    assert snapshot(inputs) == before
+
+
+def test_the_last_check_tries_a_file_that_never_appears(tmp_path):
+    """Without ``probe`` the output check only looks; with it, the one file it makes has no
+    name in the folder (inotify sees an unnamed file closed, nothing made or removed)."""
+    watch = FolderWatch([tmp_path])
+    check_outputs([tmp_path / "a.glb", tmp_path / "a.json"], force=False)
+    assert watch.changes() == []
+    watch = FolderWatch([tmp_path])
+    check_outputs([tmp_path / "a.glb", tmp_path / "a.json"], force=False, probe=True)
+    changes = watch.changes()
+    assert len(changes) == 1 and re.fullmatch(rf"{re.escape(str(tmp_path))}/#\d+ 0x8", changes[0])
+    assert list(tmp_path.iterdir()) == []
 
 
 # ----------------------------------------------------------------------------- deep node graphs

@@ -5,11 +5,14 @@ Reading: a mesh may only reference files inside its own folder (:func:`resolve_r
 Writing: :func:`check_outputs` is the one output-safety check, used by
 :func:`geoscaler.io.save_mesh` and by every command before it starts work. It refuses writing
 over an input file, an existing output without ``force``, a missing folder and a folder that is
-not writable, one message per mistake. :func:`prepare_folder` creates an output folder.
+not writable, one message per mistake, and touches nothing while it looks: only its last step,
+asked for by the last check before long work, tries a file in each folder (see ``probe``).
+:func:`prepare_folder` creates an output folder.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import tempfile
 from collections.abc import Iterable
@@ -72,7 +75,11 @@ def resolve_reference(ref: str, base: Path, root: Path, owner: Path, what: str) 
 
 
 def check_outputs(
-    paths: Iterable[str | Path], *, force: bool, inputs: Iterable[str | Path] = ()
+    paths: Iterable[str | Path],
+    *,
+    force: bool,
+    inputs: Iterable[str | Path] = (),
+    probe: bool = False,
 ) -> list[Path]:
     """Refuse, before any work is done, output files that cannot or must not be written.
 
@@ -80,9 +87,12 @@ def check_outputs(
 
     - an output that is one of ``inputs`` (the same path once links are resolved, or the same
       file under another name), even with ``force``;
-    - an output that is a folder;
+    - an output that is a folder, a device, a pipe or a socket;
     - outputs that exist (all of them named) unless ``force``;
-    - an output whose folder is missing or not writable.
+    - an output whose folder is missing, a system folder or not writable.
+
+    Every check only looks (names, ``stat``, ``os.access``) until all have passed; a refused
+    output leaves no trace in any folder, not even a file made and removed again.
 
     Parameters
     ----------
@@ -92,6 +102,13 @@ def check_outputs(
         Replace existing outputs (``--force`` on the command line, ``overwrite`` in Python).
     inputs : iterable of str or Path
         Files the outputs are made from (e.g. ``TexturedMesh.source_files``).
+    probe : bool
+        Then also create a file in each folder, as writing will, so that a folder
+        ``os.access`` wrongly calls writable (a file system or server that refuses later) is
+        refused before long work: an unnamed file (``O_TMPFILE``), which never appears in
+        the folder, or where the file system cannot make one, a named file removed at once.
+        Ask for it only in the last check before long work, once nothing else can refuse.
+        Without it, the write itself is the test (:mod:`geoscaler.io.atomic`).
 
     Returns
     -------
@@ -102,15 +119,21 @@ def check_outputs(
     for target in targets:
         _check_name(target)
     try:
-        return _check_outputs(targets, force, [Path(p).resolve() for p in inputs])
+        _check_outputs(targets, force, [Path(p).resolve() for p in inputs])
+        folders = _check_folders(targets)
     except OSError as error:  # a folder on the way cannot be searched, a name is too long...
         name = printable_path(error.filename) if error.filename else "an output"
         raise GeoscalerError(
             f"{name}: cannot be checked for writing ({error.strerror}); choose another output"
         ) from error
+    for folder, target in folders.items() if probe else ():
+        problem = _cannot_create(folder)
+        if problem is not None:
+            raise _not_writable(target, folder, problem)
+    return targets
 
 
-def _check_outputs(targets: list[Path], force: bool, sources: list[Path]) -> list[Path]:
+def _check_outputs(targets: list[Path], force: bool, sources: list[Path]) -> None:
     for target in targets:
         same = target.resolve() in sources or (
             target.exists() and any(s.exists() and os.path.samefile(s, target) for s in sources)
@@ -135,6 +158,11 @@ def _check_outputs(targets: list[Path], force: bool, sources: list[Path]) -> lis
             f"replace {'it' if one else 'them'} (overwrite=True in Python), or choose another "
             "output name"
         )
+
+
+def _check_folders(targets: list[Path]) -> dict[Path, Path]:
+    """Each output folder (existing, not a system folder, writable by ``os.access``) and the
+    last output in it."""
     last_in_folder = {target.resolve().parent: target for target in targets}
     for folder, target in last_in_folder.items():
         if not folder.is_dir():
@@ -146,11 +174,16 @@ def _check_outputs(targets: list[Path], force: bool, sources: list[Path]) -> lis
                 f"{target}: folder {folder} is a system folder (/proc, /sys, /dev), not for "
                 "files; choose another output folder"
             )
-        if not os.access(folder, os.W_OK) or not _can_create(folder):
-            raise GeoscalerError(
-                f"{target}: folder {folder} is not writable; choose another output folder"
-            )
-    return targets
+        if not os.access(folder, os.W_OK | os.X_OK):
+            raise _not_writable(target, folder)
+    return last_in_folder
+
+
+def _not_writable(target: Path, folder: Path, problem: str | None = None) -> GeoscalerError:
+    why = f" ({problem})" if problem else ""
+    return GeoscalerError(
+        f"{target}: folder {folder} is not writable{why}; choose another output folder"
+    )
 
 
 def _check_name(target: Path) -> None:
@@ -184,16 +217,29 @@ def _exists(path: Path) -> bool:
         return False
 
 
-def _can_create(folder: Path) -> bool:
-    """Whether a file can really be made in ``folder`` (as root, ``os.access`` says yes even
-    where the file system refuses); the probe is removed at once."""
+_NO_TMPFILE = (errno.EOPNOTSUPP, errno.EISDIR, errno.EINVAL)
+"""What ``open(O_TMPFILE)`` fails with where the kernel or the file system has no unnamed
+files (NFS, FAT, older kernels)."""
+
+
+def _cannot_create(folder: Path) -> str | None:
+    """Why no file can be made in ``folder``, or None when one can: an unnamed file, which
+    never appears in the folder, or where there are none, a named one removed at once."""
+    flag = getattr(os, "O_TMPFILE", None)
+    if flag is not None:
+        try:
+            os.close(os.open(folder, flag | os.O_WRONLY, 0o600))
+            return None
+        except OSError as error:
+            if error.errno not in _NO_TMPFILE:
+                return error.strerror
     try:
         fd, name = tempfile.mkstemp(prefix=".geoscaler-probe-", dir=folder)
-    except OSError:
-        return False
+    except OSError as error:
+        return error.strerror
     os.close(fd)
     os.unlink(name)
-    return True
+    return None
 
 
 def printable_path(path: str | Path | bytes) -> str:
@@ -202,9 +248,11 @@ def printable_path(path: str | Path | bytes) -> str:
     return text if len(text) <= 130 else f"{text[:60]}...{text[-60:]}"
 
 
-def check_output(path: str | Path, *, force: bool, inputs: Iterable[str | Path] = ()) -> Path:
+def check_output(
+    path: str | Path, *, force: bool, inputs: Iterable[str | Path] = (), probe: bool = False
+) -> Path:
     """:func:`check_outputs` for one file; returns it as a Path."""
-    return check_outputs([path], force=force, inputs=inputs)[0]
+    return check_outputs([path], force=force, inputs=inputs, probe=probe)[0]
 
 
 def prepare_folder(path: str | Path, flag: str = "--out") -> Path:
