@@ -10,6 +10,7 @@ need drawing they are drawn in one pass (:meth:`GLRenderer.render_pair`).
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 import moderngl
@@ -81,7 +82,8 @@ def split_views(
     ``(stacked, view width, view height)``.
 
     Side by side, unless one above the other shows a mesh whose outline is ``outline``
-    ``(width, height)`` larger (a wide mesh).
+    ``(width, height)`` larger (a wide mesh). Sizes are whole screen units, so that both views
+    cover the same pixels on screen wherever the second one starts.
     """
     across = ((width - GAP) / 2, height - label)
     stacked = (width, (height - GAP) / 2 - label)
@@ -90,7 +92,13 @@ def split_views(
         return min(view[0] / outline[0], view[1] / outline[1])
 
     chosen = stacked if scale(stacked) > scale(across) else across
-    return chosen is stacked, max(chosen[0], MIN_VIEW), max(chosen[1], MIN_VIEW)
+    return chosen is stacked, whole(chosen[0]), whole(chosen[1])
+
+
+def whole(size: float) -> float:
+    """A view's side in whole screen units, at least :data:`MIN_VIEW`: a fraction would put
+    the edges of two views on different pixels (one a pixel wider than the other)."""
+    return max(float(math.floor(size)), MIN_VIEW)
 
 
 def pixel_shape(width: float, height: float, density: float) -> tuple[int, int]:
@@ -192,7 +200,7 @@ class ViewsPanel:
             outline = Orbit().outline(session.points)
             self.stacked, view_w, view_h = split_views(width, height, outline, line)
         else:
-            self.stacked, view_w, view_h = False, max(width, MIN_VIEW), max(height - line, MIN_VIEW)
+            self.stacked, view_w, view_h = False, whole(width), whole(height - line)
         density = imgui.get_io().display_framebuffer_scale.x
         if session.set_view_shape(pixel_shape(view_w, view_h, density)):
             self.dirty, self.original_drawn = True, None

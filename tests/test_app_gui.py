@@ -197,6 +197,8 @@ def test_a_session_in_the_app(gui_runner, tmp_path):
     x, y, width, height = seen["views window"]
     left, right = seen["rects"]["##original"], seen["rects"]["##downsampled"]
     assert left[1] == right[1]  # side by side (the demo asset is about as wide as high)
+    sizes = [(rect[2] - rect[0], rect[3] - rect[1]) for rect in (left, right)]
+    assert sizes[0] == sizes[1] and all(v.is_integer() for v in sizes[0])  # on any screen
     assert right[2] - left[0] > width - 24  # the window's width, less its padding and the gap
     assert right[3] > y + height - 16  # down to the window's bottom
     for name in ("##original", "##downsampled"):

@@ -388,6 +388,9 @@ def test_two_views_stack_for_a_wide_mesh():
     stacked, width, height = views.split_views(1000.0, 600.0, outline=(1.0, 2.0), label=20.0)
     assert not stacked and width == (1000.0 - views.GAP) / 2 and height == 600.0 - 20.0
     assert not views.split_views(1000.0, 600.0, outline=(1.2, 1.0))[0]  # about square
+    # Whole screen units: two views 386.5 wide would cover 386 and 387 pixels on screen.
+    assert views.split_views(781.0, 600.5, outline=(1.0, 1.0), label=17.25) == (False, 386.0, 583.0)
+    assert views.split_views(781.5, 40.0, outline=(1.0, 1.0)) == (False, 386.0, views.MIN_VIEW)
     assert views.pixel_shape(500.0, 300.0, 2.0) == (1000, 600)  # one texel a pixel
     width, height = views.pixel_shape(4000.0, 2000.0, 1.0)  # capped, the shape kept
     assert width * height <= views.MAX_VIEW_PIXELS and width == pytest.approx(2 * height, abs=1)
