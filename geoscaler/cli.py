@@ -7,18 +7,15 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from geoscaler import __version__
 from geoscaler.errors import GeoscalerError
-from geoscaler.process import configure_process
+from geoscaler.process import configure_process, exit_status_kept
 from geoscaler.protocol import PROTOCOL, PROTOCOL_EVALUATION, Evaluation
 from geoscaler.uvmodes import add_uv_argument
-
-if TYPE_CHECKING:
-    pass
 
 DEFAULT_DEMO_DIR = Path("assets")
 
@@ -574,11 +571,17 @@ def main(
     fewer or smaller views, and overrides of the learned methods' loop settings. The command
     line itself always runs protocol 1 with each method's own settings.
 
-    A job's time budget counts from the command's start: the process's start when the
-    command line is the process (``argv`` None: the interpreter's start and the imports
-    count), else this call's.
+    With ``argv`` None the command line is the process: a job's time budget counts from its
+    start, not this call's, and a late Ctrl-C cannot change its exit status (exit_status_kept).
     """
-    called_at = None if argv is None else time.perf_counter()
+    if argv is None:
+        return exit_status_kept(lambda: _run(None, evaluation, optimize, None))
+    return _run(argv, evaluation, optimize, time.perf_counter())
+
+
+def _run(
+    argv: list[str] | None, evaluation: Evaluation, optimize: dict | None, called_at: float | None
+) -> int:
     configure_process()  # before the commands below first import torch
     args = build_parser().parse_args(argv)
     args.evaluation, args.optimize, args.called_at = evaluation, optimize, called_at

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import importlib
 import os
+import signal
+from collections.abc import Callable
 
 
 def configure_process() -> None:
@@ -32,3 +34,27 @@ def without_numpy_hugepages() -> None:
         if switch is not None:
             switch(False)
             return
+
+
+def exit_status_kept(command: Callable[[], int]) -> int:
+    """Run ``command`` as the process's command line and return its exit status, which a late
+    Ctrl-C can no longer change: SIGINT is ignored from the moment the command has ended.
+
+    Without this, a Ctrl-C that comes after the command's own handling (e.g. the second of
+    two, while the interpreter shuts down: Python then puts SIGINT's default action back) kills
+    the process by SIGINT instead of letting it exit with the status the command chose (130
+    after an interruption). A KeyboardInterrupt that escapes ``command`` ends it with 130.
+    """
+    status = 130
+    try:
+        status = command()
+    except KeyboardInterrupt:  # between the command's own handling and here
+        pass
+    finally:
+        while True:  # a Ctrl-C pending here is raised by signal.signal's own check: again
+            try:
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+                break
+            except KeyboardInterrupt:
+                status = 130
+    return status

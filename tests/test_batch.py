@@ -240,9 +240,12 @@ WORKER = textwrap.dedent(
     import sys
     import geoscaler.cli
     from geoscaler.protocol import Evaluation
-    sys.exit(geoscaler.cli.main(sys.argv[1:], evaluation=Evaluation.quick((0,))))
+    sys.exit(geoscaler.cli.main(evaluation=Evaluation.quick((0,))))
     """
 )
+"""The console script's ``sys.exit(main())`` with the quick evaluation: ``main`` reads
+``sys.argv`` and runs as the process's command line, whose exit status a late Ctrl-C must not
+change."""
 
 
 def _wait_for_staging(out: Path, process: subprocess.Popen, timeout: float = 60) -> Path:

@@ -118,3 +118,35 @@ def test_the_command_line_stops_numpy_asking_for_huge_pages(tmp_path, capsys):
     finally:
         advice._set_madvise_hugepage(True)  # numpy's default, for the tests after this one
     assert "missing.glb" in capsys.readouterr().err
+
+
+LATE_CTRL_C = """
+import os, signal, sys
+from geoscaler.process import exit_status_kept
+
+def command():
+    {body}
+
+status = exit_status_kept(command)
+os.kill(os.getpid(), signal.SIGINT)  # a Ctrl-C after the command ended, as the process exits
+sys.exit(status)
+"""
+
+
+@pytest.mark.parametrize(
+    "body, status",
+    [
+        ("return 130", 130),  # the command was interrupted and said so
+        ("return 0", 0),  # it had finished: the late Ctrl-C interrupts nothing
+        ("raise KeyboardInterrupt", 130),  # a Ctrl-C after its own handling
+    ],
+)
+def test_a_late_ctrl_c_does_not_change_the_exit_status(body, status):
+    """As the command line (``main()`` without argv), the process exits with the command's
+    status, not by SIGINT (-2), when a Ctrl-C comes after the command has ended."""
+    import subprocess
+    import sys
+
+    code = LATE_CTRL_C.format(body=body)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert (done.returncode, done.stderr) == (status, "")
