@@ -172,3 +172,34 @@ def test_a_batch_that_cannot_write_its_summary_says_so_and_leaves_no_summary(
     assert lines[-1] == f"geoscaler: error: {out / 'summary.csv'}: {FULL}"
     assert "Traceback" not in err
     assert list(out.iterdir()) == []
+
+
+def test_an_asset_whose_report_cannot_be_moved_into_place_is_removed_whole(
+    library, tmp_path, monkeypatch
+):
+    """Another failure than a full disk, at the last step (the report renamed into place,
+    after the mesh): the asset fails with the file named at its place, nothing of it stays."""
+    import errno
+
+    import geoscaler.batch.worker as worker
+    from geoscaler.batch import FAILED, Asset, AssetTask, run_asset
+    from geoscaler.cli import build_parser, job_settings
+
+    args = build_parser().parse_args(["batch", "x", "-o", "y", "--scale", "4", *JOB])
+    args.optimize = None  # as main() sets it
+    asset = Asset("a.glb", library / "a.glb", tmp_path / "a.glb")
+    real_replace = os.replace
+
+    def failing(source, target):
+        if Path(target) == asset.report:
+            raise OSError(errno.EIO, os.strerror(errno.EIO))
+        real_replace(source, target)
+
+    monkeypatch.setattr(worker.os, "replace", failing)
+    result = run_asset(AssetTask(asset, job_settings(args), {}, ONE_VIEW))
+    assert result.status == FAILED
+    assert result.error == (
+        f"{asset.path}: {asset.report}: writing it failed (Input/output error); check the "
+        "device or choose another output folder"
+    )
+    assert list(tmp_path.iterdir()) == []
