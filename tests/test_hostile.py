@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import base64
 import ctypes
+import hashlib
 import json
 import os
 import random
@@ -26,13 +27,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 from conftest import ONE_VIEW
+from gltf_validator import ValidatorMissing, validate
 from mesh_support import QUAD_OBJ, TEXTURE, one_primitive_scene, png_bytes, two_material_mesh
 from PIL import Image
 
 from geoscaler.cli import main
 from geoscaler.io import check_outputs, load_mesh, save_mesh
 
+ODD_STEM = "öut ☃ 雪"
+ODD_SIDE = "out_" + hashlib.sha1(ODD_STEM.encode()).hexdigest()[:8]
+"""An output name with an accent, spaces and characters outside Latin, and the name its side
+files (.bin, .mtl, images) get: accents dropped, ASCII runs kept, the stem's SHA-1 added."""
 QUICK_OPTIMIZE = {"pool_views": 1, "views_per_step": 1, "validate_every": 1, "warmup_steps": 1}
 MTL = b"newmtl mat\nmap_Kd tex.png\n"
 FLOAT, UNSIGNED_INT = 5126, 5125
@@ -459,6 +466,14 @@ def path_cases() -> list[Case]:
              "uri", "s.bin")), downsample("mesh.gltf", "{in}/s.gltf", "--force"),
              "s.bin: refusing to overwrite the input file",
              lambda i, o: (i / "mesh.bin").rename(i / "s.bin")),
+        Case("downsample-odd-name-bin-onto-input-bin", as_gltf(lambda d: d["buffers"][0]
+             .__setitem__("uri", f"{ODD_SIDE}.bin")), downsample("mesh.gltf",
+             f"{{in}}/{ODD_STEM}.gltf", "--force"),
+             f"{ODD_SIDE}.bin: refusing to overwrite the input file",
+             lambda i, o: (i / "mesh.bin").rename(i / f"{ODD_SIDE}.bin")),
+        Case("downsample-odd-name-existing-mtl", obj(),
+             downsample("mesh.obj", f"{{out}}/{ODD_STEM}.obj"), f"{ODD_SIDE}.mtl: already exists",
+             lambda i, o: (o / f"{ODD_SIDE}.mtl").write_bytes(b"keep")),
         Case("downsample-side-files-too-long", obj(),
              downsample("mesh.obj", f"{{out}}/{'b' * 248}.gltf"), "too long for the file system"),
     ]  # fmt: skip
@@ -688,6 +703,59 @@ def test_odd_output_names_load_again(tmp_path, stem: str, suffix: str):
     save_mesh(two_material_mesh(), path)
     loaded = load_mesh(path)
     assert len(loaded.faces) == 4 and len(loaded.materials) == 2
+
+
+def trimesh_textures(path: Path) -> list[tuple[int, int]]:
+    """The size of each base-colour image trimesh finds for the geometries of ``path``."""
+    sizes = []
+    for geometry in trimesh.load(path, process=False).geometry.values():
+        material = geometry.visual.material
+        image = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
+        if image is not None:
+            sizes.append(image.size)
+    return sizes
+
+
+@pytest.mark.parametrize(("suffix", "side"), [(".gltf", ".bin"), (".obj", ".mtl")])
+def test_side_files_of_an_odd_name_are_found_by_every_loader(tmp_path, suffix: str, side: str):
+    """The mesh file keeps the user's name; the files beside it are named from it in ASCII
+    letters, digits, '.', '_' and '-', so glTF URIs need no percent-encoding and trimesh,
+    which does not decode them, finds the files too."""
+    path = tmp_path / f"{ODD_STEM}{suffix}"
+    mesh = two_material_mesh()
+    written = save_mesh(mesh, path)
+    image = f"{ODD_SIDE}_0_basecolor.png"
+    assert [p.name for p in written] == [image, f"{ODD_SIDE}{side}", path.name]
+    loaded = load_mesh(path)
+    assert len(loaded.faces) == 4 and [m.name for m in loaded.materials] == ["painted", "plain"]
+    np.testing.assert_array_equal(
+        loaded.materials[0].base_color_texture, mesh.materials[0].base_color_texture
+    )
+    assert trimesh_textures(path) == [(8, 4)]
+    if suffix == ".gltf":
+        doc = json.loads(path.read_text())
+        assert doc["buffers"][0]["uri"] == f"{ODD_SIDE}.bin" and doc["images"][0]["uri"] == image
+    else:
+        assert f"mtllib {ODD_SIDE}.mtl\n" in path.read_text()
+        assert f"map_Kd {image}\n" in (tmp_path / f"{ODD_SIDE}.mtl").read_text()
+
+
+def test_a_downsample_to_an_odd_gltf_name_is_valid_and_loads(tmp_path, capsys):
+    """The whole command, checked by the Khronos glTF-Validator, trimesh and GeoScaler."""
+    for name, data in obj(texture=png_bytes(np.tile(TEXTURE, (4, 4, 1)))).items():
+        (tmp_path / name).write_bytes(data)
+    out = tmp_path / f"{ODD_STEM}.gltf"
+    argv = [a.replace("{in}", str(tmp_path)) for a in downsample("mesh.obj", str(out))]
+    assert run(argv) == 0, capsys.readouterr().err
+    written = sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(ODD_SIDE))
+    assert written == [f"{ODD_SIDE}.bin", f"{ODD_SIDE}_tex.png"]
+    assert trimesh_textures(out) == [(8, 4)]
+    assert load_mesh(out).materials[0].base_color_texture.shape == (4, 8, 3)
+    try:
+        _, reports = validate([out])
+    except ValidatorMissing as missing:
+        pytest.skip(str(missing))
+    assert reports[str(out)]["errors"] == 0, reports[str(out)]["messages"]
 
 
 def test_written_gltf_passes_the_loaders_checks_and_info_json_is_strict(tmp_path, capsys):

@@ -29,6 +29,7 @@ from .gltf import (
     UNSIGNED_SHORT,
     pack_glb,
 )
+from .paths import side_file
 from .slots import MTL_PROPERTIES, slot_path, texture_infos
 
 if TYPE_CHECKING:
@@ -124,8 +125,9 @@ def gltf_files(
     if binary:
         files[path.name] = pack_glb(doc, bytes(buffer.data))
         return files
-    doc["buffers"][0]["uri"] = urllib.parse.quote(path.stem + ".bin")
-    files[path.stem + ".bin"] = bytes(buffer.data)
+    bin_name = side_file(path, ".bin").name
+    doc["buffers"][0]["uri"] = urllib.parse.quote(bin_name)  # safe: quoting changes nothing
+    files[bin_name] = bytes(buffer.data)
     files[path.name] = json.dumps(doc, indent=1).encode()
     return files
 

@@ -30,6 +30,8 @@ from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import SourceImage
 from geoscaler.texture import to_rgb
 
+from .paths import safe_characters
+
 MAX_TEXTURE_SIDE = 16384
 """Widest or tallest texture GeoScaler decodes, in pixels (the largest GPUs' limit)."""
 MAX_TEXTURE_PIXELS = 8192 * 8192
@@ -147,18 +149,18 @@ def source_image(
 
 
 _IMAGE_SUFFIXES = re.compile(r"\.(png|jpe?g|webp|bmp|tga|tiff?|gif|ktx2?|dds)$", re.IGNORECASE)
-_UNSAFE = re.compile(r"[^\w.-]+")
 MAX_NAME = 64
 """Longest file-name stem kept from an input image's name (the output's stem is added)."""
 
 
 def file_stem(name: str) -> str:
     """A safe file-name stem from an image's name or file name: the last path component, an
-    image suffix dropped, characters other than letters, digits, ``.``, ``_`` and ``-``
-    replaced by ``_``, no leading ``.`` or ``-``, at most :data:`MAX_NAME` characters."""
+    image suffix dropped, in ASCII letters, digits, ``.``, ``_`` and ``-``
+    (:func:`geoscaler.io.paths.safe_characters`), no leading ``.`` or ``-``, at most
+    :data:`MAX_NAME` characters; empty where nothing of it is left."""
     last = name.replace("\\", "/").rsplit("/", 1)[-1]
-    stem = _UNSAFE.sub("_", _IMAGE_SUFFIXES.sub("", last.strip()))
-    return stem.lstrip(".-")[:MAX_NAME]
+    stem = safe_characters(_IMAGE_SUFFIXES.sub("", last.strip())).lstrip(".-")[:MAX_NAME]
+    return stem if stem.strip("_") else ""
 
 
 # ----------------------------------------------------------------------------- writing

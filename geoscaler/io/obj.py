@@ -26,7 +26,7 @@ from geoscaler.mesh import BASE_COLOR, Material, SourceImage, TexturedMesh
 
 from .assemble import MaterialBuilder, Part
 from .images import open_image, source_image
-from .paths import resolve_reference
+from .paths import resolve_reference, side_file
 from .slots import MTL_KEYWORDS, MTL_MAPS, MTL_PREFIX, MTL_PROPERTIES
 
 if TYPE_CHECKING:
@@ -315,7 +315,7 @@ def obj_files(
     """
     names = _unique_names([mesh.materials[m].name for m in used])
     files = {image.name: data for image, (data, _) in zip(images, encoded, strict=True)}
-    mtl_name = path.stem + ".mtl"
+    mtl_name = side_file(path, ".mtl").name
     files[mtl_name] = _mtl_text(mesh, used, names, images, slots).encode()
     files[path.name] = _obj_text(mesh, used, names, mtl_name).encode()
     return files

@@ -13,8 +13,12 @@ asked for by the last check before long work, tries a file in each folder (see `
 from __future__ import annotations
 
 import errno
+import hashlib
 import os
+import re
+import string
 import tempfile
+import unicodedata
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -23,6 +27,9 @@ from geoscaler.errors import GeoscalerError
 SUPPORTED_SUFFIXES = (".obj", ".gltf", ".glb")
 """Mesh file types GeoScaler reads and writes."""
 FORMAT_NAMES = {".obj": "Wavefront OBJ", ".gltf": "glTF 2.0", ".glb": "binary glTF (GLB)"}
+SAFE_CHARACTERS = frozenset(string.ascii_letters + string.digits + "-._")
+"""What the names of side files are made of: a URI, an MTL statement and a shell hold them as
+they are (no percent-encoding, no spaces, no quoting)."""
 
 
 def check_suffix(path: Path) -> str:
@@ -72,6 +79,28 @@ def resolve_reference(ref: str, base: Path, root: Path, owner: Path, what: str) 
 
 
 # ----------------------------------------------------------------------------- writing
+
+
+def safe_characters(text: str) -> str:
+    """``text`` in :data:`SAFE_CHARACTERS`: accents dropped (``ö`` -> ``o``), each run of
+    other characters replaced by one ``_``."""
+    ascii_text = unicodedata.normalize("NFKD", text).encode("ascii", "ignore").decode()
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", ascii_text)
+
+
+def side_file(path: Path, suffix: str) -> Path:
+    """The file written beside the mesh file ``path`` whose name ends in ``suffix``
+    (``".bin"``, ``".mtl"``, ``"_albedo.png"``), named so that readers find it whatever the
+    mesh file is called (the mesh file keeps its name): ``path``'s stem where it is made of
+    :data:`SAFE_CHARACTERS`, else the stem in them (:func:`safe_characters`, at most 64) and
+    8 hex digits of its SHA-1, so different stems keep different side files
+    (``öut ☃ 雪.gltf`` -> ``out_`` and 8 digits ``.bin``)."""
+    stem = path.stem
+    if not stem or safe_characters(stem) != stem:
+        digest = hashlib.sha1(stem.encode("utf-8", "surrogateescape")).hexdigest()[:8]
+        words = safe_characters(stem).strip("_")[:64]
+        stem = f"{words}_{digest}" if words else digest
+    return path.parent / (stem + suffix)
 
 
 def check_outputs(

@@ -23,7 +23,7 @@ from .atomic import write_files
 from .gltf_write import gltf_files
 from .images import FILE_SUFFIXES, encoded_image, written_mime
 from .obj import obj_files
-from .paths import check_outputs, check_suffix
+from .paths import check_outputs, check_suffix, side_file
 from .slots import in_gltf, in_mtl, slot_file_name
 
 
@@ -135,8 +135,8 @@ def _inputs(mesh: TexturedMesh) -> list[Path]:
 
 def _targets(path: Path, suffix: str, images: list[ImageOut]) -> list[Path]:
     names = [] if suffix == ".glb" else [image.name for image in images]
-    names += [path.stem + ".mtl"] if suffix == ".obj" else []
-    names += [path.stem + ".bin"] if suffix == ".gltf" else []
+    names += [side_file(path, ".mtl").name] if suffix == ".obj" else []
+    names += [side_file(path, ".bin").name] if suffix == ".gltf" else []
     return [path.parent / name for name in [*names, path.name]]
 
 
@@ -146,7 +146,10 @@ def _plan_images(
     """Images to write and which image each (material, slot) shows; shared arrays once.
 
     File names: ``STEM_NAME.EXT`` with the source's name, ``STEM_M_SLOT.EXT`` for a texture
-    made in code, made unique with ``_2``, ``_3``... ``EXT`` says the encoding.
+    made in code, made unique with ``_2``, ``_3``... ``EXT`` says the encoding. ``STEM`` is the
+    output's (:func:`geoscaler.io.paths.side_file`) and ``NAME`` is made of the same safe
+    characters (:func:`geoscaler.io.images.file_stem`), so URIs and MTL statements hold the
+    names as they are.
     """
     suffix = path.suffix.lower()
     if suffix == ".obj" and image_format == "webp":
@@ -174,7 +177,7 @@ def _plan_images(
                     wanted = "png"  # OBJ readers do not read WebP
                 mime = written_mime(pixels, source, wanted)
                 stem = source.name if source is not None else f"{m}_{slot_file_name(slot)}"
-                name = _unique(f"{path.stem}_{stem}", FILE_SUFFIXES[mime], names)
+                name = _unique(side_file(path, f"_{stem}").name, FILE_SUFFIXES[mime], names)
                 by_identity[key] = len(images)
                 images.append(ImageOut(name, pixels, source, wanted, texture))
             slots[(m, slot)] = by_identity[key]
