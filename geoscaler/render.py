@@ -23,7 +23,13 @@ from geoscaler.filters import reference_textures
 from geoscaler.mesh import TexturedMesh
 from geoscaler.protocol import PROTOCOL_EVALUATION, Evaluation
 from geoscaler.raster import GBuffer, rasterize
-from geoscaler.texture import MipTexture, UVFootprint, linear_to_srgb, texture_to_linear
+from geoscaler.texture import (
+    EncodedMipTexture,
+    MipTexture,
+    UVFootprint,
+    linear_to_srgb,
+    texture_to_linear,
+)
 
 
 class Renderer:
@@ -111,9 +117,19 @@ class Renderer:
         return list(self._reference_maps)
 
     def reference_textures(self) -> list[MipTexture | None]:
-        """Mip chains of :meth:`reference_maps`, made once per renderer (read only)."""
+        """Mip chains of :meth:`reference_maps`, made once per renderer (read only), one per
+        distinct map (materials showing one image share it): :class:`~geoscaler.texture.
+        EncodedMipTexture`, whose level 0 is the map's own 8-bit texels, so that a large
+        original is never held in float32 at full size."""
         if self._reference is None:
-            self._reference = self.mip_textures(self.reference_maps())
+            chains: dict[int, MipTexture] = {}
+            for texture in self.reference_maps():
+                if texture is not None and id(texture) not in chains:
+                    chains[id(texture)] = EncodedMipTexture(texture, self.device)
+            self._reference = [
+                None if texture is None else chains[id(texture)]
+                for texture in self.reference_maps()
+            ]
         return self._reference
 
     def rasterize(self, camera: Camera, resolution: int | None = None) -> GBuffer:

@@ -402,12 +402,11 @@ def interpolate(fragments: SoftFragments, faces: torch.Tensor, values: torch.Ten
 def bilinear(texture: torch.Tensor | MipTexture, u: torch.Tensor, v: torch.Tensor):
     """``(C, N)`` bilinear samples of level 0 of ``texture`` (a ``(h, w, C)`` linear tensor or
     a :class:`MipTexture`, whose finer levels are not read): GPU texel centres, repeat."""
-    if isinstance(texture, MipTexture):
-        layout, texels = texture.layout, texture.texels
-    else:
-        layout = MipLayout(texture.shape[0], texture.shape[1], texture.device)
-        texels = texture.reshape(-1, texture.shape[2]).T
     level = torch.zeros(u.shape, dtype=torch.int32, device=u.device)
+    if isinstance(texture, MipTexture):
+        return texture.bilinear(u, v, level)
+    layout = MipLayout(texture.shape[0], texture.shape[1], texture.device)
+    texels = texture.reshape(-1, texture.shape[2]).T
     return gather(texels, *layout.bilinear_taps(u, v, level))
 
 

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 import torch
 
+from geoscaler import texture as texture_module
 from geoscaler.texture import (
+    EncodedMipTexture,
     MipLayout,
     MipTexture,
     TapMatrix,
@@ -16,6 +18,7 @@ from geoscaler.texture import (
     linear_to_srgb,
     linear_to_texture,
     mip_sizes,
+    next_mip_level,
     srgb_to_linear,
     texture_to_linear,
     to_rgb,
@@ -210,6 +213,61 @@ def test_sampling_is_differentiable_in_texels_and_uvs():
         return MipTexture(texels).sample(UVFootprint(u, v, du_dx, zero, zero, dv_dy))
 
     assert torch.autograd.gradcheck(sample, (texels, u, v, du_dx, dv_dy))
+
+
+def random_footprints(count, seed):
+    """Samples all over a texture, magnified to minified beyond the coarsest level."""
+    generator = torch.Generator().manual_seed(seed)
+    u, v = torch.rand(2, count, generator=generator) * 3 - 1  # repeat addressing too
+    scale = 2.0 ** (torch.rand(count, generator=generator) * 16 - 12)
+    zero = torch.zeros(count)
+    return UVFootprint(u, v, scale, zero, zero, scale * 0.7)
+
+
+@pytest.mark.parametrize("shape", [(37, 64, 3), (64, 37, 4), (33, 20), (9, 6, 2), (1, 5, 3)])
+def test_an_encoded_chain_samples_the_bits_of_the_float_chain_of_its_texture(shape):
+    codes = np.random.default_rng(3).integers(0, 256, shape, dtype=np.uint8)
+    encoded = EncodedMipTexture(codes)
+    float_chain = MipTexture(texture_to_linear(codes))
+    footprint = random_footprints(5000, seed=4)
+    assert torch.equal(encoded.sample(footprint), float_chain.sample(footprint))
+    fine_texels = shape[0] * shape[1]  # levels 1 and coarser are held, equal to the bit
+    assert torch.equal(encoded.coarse, float_chain.texels[:, fine_texels:])
+
+
+def test_an_encoded_chain_decodes_level_one_a_band_at_a_time(monkeypatch):
+    codes = np.random.default_rng(5).integers(0, 256, (70, 24, 3), dtype=np.uint8)
+    whole = EncodedMipTexture(codes).coarse
+    monkeypatch.setattr(texture_module, "ENCODED_BAND_TEXELS", 2 * 24 * 4)  # 4 rows of level 1
+    assert torch.equal(EncodedMipTexture(codes).coarse, whole)
+
+
+def test_an_encoded_chain_holds_its_textures_bytes_and_float_levels_past_the_first_only():
+    codes = np.random.default_rng(6).integers(0, 256, (64, 32, 4), dtype=np.uint8)
+    codes.flags.writeable = False  # as loaded textures are
+    encoded = EncodedMipTexture(codes)
+    assert encoded.codes.data_ptr() == codes.ctypes.data  # the array itself, not a copy
+    assert encoded.coarse.shape == (3, (32 * 16 + 16 * 8 + 8 * 4 + 4 * 2 + 2 * 1 + 1))
+    with pytest.raises(AttributeError, match="no float level 0"):
+        encoded.texels  # noqa: B018
+
+
+def test_an_encoded_chain_decodes_each_channel_by_its_own_table():
+    codes = np.random.default_rng(7).integers(0, 256, (16, 8, 2), dtype=np.uint8)
+    ramp = np.arange(256, dtype=np.float32) / 255
+    decoding = [(1, ramp), (0, ramp * 2 - 1)]  # alpha first, then grey as a signed value
+    encoded = EncodedMipTexture(codes, decoding=decoding)
+    values = torch.from_numpy(np.stack([ramp[codes[..., 1]], ramp[codes[..., 0]] * 2 - 1], 2))
+    footprint = random_footprints(2000, seed=8)
+    assert torch.equal(encoded.sample(footprint), MipTexture(values).sample(footprint))
+
+
+def test_the_next_mip_level_of_a_band_of_rows_is_that_band_of_the_next_level():
+    level = torch.rand(20, 14, 3, generator=torch.Generator().manual_seed(9))
+    below = next_mip_level(level)
+    assert below.shape == (10, 7, 3)
+    assert torch.equal(next_mip_level(level[6:12]), below[3:6])
+    assert next_mip_level(level[:1]).shape == (1, 7, 3)  # a side of 1 is kept
 
 
 def test_a_tap_matrix_sums_each_rows_weighted_texels_given_in_any_order():
