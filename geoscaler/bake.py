@@ -4,7 +4,9 @@ Every texel of the new texture is the average of ``supersample x supersample`` s
 the original texture looked up where the chart's map sends the sample back in the old layout
 (the charts moved by similarities, :mod:`geoscaler.atlas`), filtered as a GPU does
 (:meth:`geoscaler.texture.MipTexture.sample`: trilinear, its level of detail
-from how far one sample moves in the old texture): an area filter over the original's texels.
+from how far one sample moves in the old texture): an area filter over the original's texels,
+read from its 8-bit texels (:class:`~geoscaler.texture.EncodedMipTexture`: no float copy of a
+large map at full size).
 Values are filtered as what they hold (:mod:`geoscaler.maps`'s classes): colour in linear
 light (alpha linear), tangent-space normals as vectors renormalised afterwards, data per
 channel. Texels no face covers (gutters) read the original through their nearest chart's map,
@@ -25,21 +27,34 @@ from geoscaler.filters import resize_float
 from geoscaler.maps import resize_map
 from geoscaler.raster import rasterize
 from geoscaler.sizes import COLOR, NORMAL
-from geoscaler.texture import MipTexture, UVFootprint, linear_to_srgb, srgb_to_linear
+from geoscaler.texture import (
+    Decoding,
+    EncodedMipTexture,
+    UVFootprint,
+    decode_codes,
+    linear_to_srgb,
+    srgb_to_linear,
+)
 
 
 def decode(pixels: np.ndarray, kind: str) -> torch.Tensor:
-    """``(H, W, C)`` uint8 map to ``(H, W, C)`` float32 values that filter linearly: COLOR's
-    colour channels (all but a last alpha of 2 or 4 channels) decoded from sRGB, NORMAL's
-    first three as vectors ``2 v / 255 - 1``, everything else ``v / 255``."""
-    values = torch.from_numpy(np.asarray(pixels, np.float32) / 255.0)
-    channels = values.shape[2]
+    """``(H, W, C)`` uint8 map to ``(H, W, C)`` float32 values that filter linearly
+    (:func:`decoding`)."""
+    return decode_codes(pixels, decoding(kind, pixels.shape[2]))
+
+
+def decoding(kind: str, channels: int) -> Decoding:
+    """How a map of class ``kind`` with ``channels`` channels is read: per channel the float32
+    value of each 8-bit code ``v``: COLOR's colour channels (all but a last alpha of 2 or 4
+    channels) decoded from sRGB, NORMAL's first three as vectors ``2 v / 255 - 1``, everything
+    else ``v / 255``."""
+    values = (torch.arange(256, dtype=torch.float32) / 255.0)[:, None].repeat(1, channels)
     if kind == COLOR:
         colour = channels - 1 if channels in (2, 4) else channels
-        values[..., :colour] = srgb_to_linear(values[..., :colour])
+        values[:, :colour] = srgb_to_linear(values[:, :colour])
     elif kind == NORMAL and channels >= 3:
-        values[..., :3] = values[..., :3] * 2.0 - 1.0
-    return values
+        values[:, :3] = values[:, :3] * 2.0 - 1.0
+    return [(channel, values[:, channel].numpy()) for channel in range(channels)]
 
 
 def encode(values: torch.Tensor, kind: str) -> np.ndarray:
@@ -96,7 +111,7 @@ def bake(
     Returns:
         ``((size, size, C) uint8 map, (size, size) bool texels some face covers)``.
     """
-    texture = MipTexture(decode(pixels, kind))
+    texture = EncodedMipTexture(pixels, decoding=decoding(kind, pixels.shape[2]))
     grid = size * oversample
     labels, covered = _nearest_chart(layout, grid)
     sample = torch.nonzero(labels.view(-1) >= 0).squeeze(1)

@@ -25,7 +25,7 @@ from geoscaler.atlas import (
     planned_scales,
     repack,
 )
-from geoscaler.bake import ChartMaps, bake, decode, encode
+from geoscaler.bake import ChartMaps, bake, decode, decoding, encode
 from geoscaler.cameras import validation_cameras
 from geoscaler.filters import resize_float
 from geoscaler.mesh import Material, TexturedMesh, compute_vertex_normals
@@ -39,6 +39,7 @@ from geoscaler.packing import (
 )
 from geoscaler.render import Renderer
 from geoscaler.sizes import COLOR, DATA, NORMAL
+from geoscaler.texture import EncodedMipTexture, MipTexture, UVFootprint, srgb_to_linear
 from geoscaler.uvmaps import chart_labels, cut_charts
 from geoscaler.views import ViewSet
 
@@ -373,6 +374,24 @@ def test_normals_bake_as_unit_vectors_and_data_per_channel():
     np.testing.assert_array_equal(encode(shortened, NORMAL), pixels)  # renormalised
     data = np.array([[[10, 200]]], np.uint8)
     np.testing.assert_array_equal(encode(decode(data, DATA), DATA), data)
+
+
+@pytest.mark.parametrize(("kind", "channels"), [(COLOR, 4), (COLOR, 3), (NORMAL, 3), (DATA, 2)])
+def test_a_map_bakes_from_its_8bit_chain_with_the_bits_of_its_float_chain(kind, channels):
+    pixels = np.random.default_rng(11).integers(0, 256, (48, 40, channels), dtype=np.uint8)
+    values = torch.from_numpy(pixels.astype(np.float32) / 255.0)  # each class's formula
+    if kind == COLOR:
+        values[..., :3] = srgb_to_linear(values[..., :3])  # an alpha stays linear
+    elif kind == NORMAL:
+        values = values * 2.0 - 1.0
+    assert torch.equal(decode(pixels, kind), values)
+    generator = torch.Generator().manual_seed(12)
+    u, v = torch.rand(2, 3000, generator=generator)
+    scale = 2.0 ** (torch.rand(3000, generator=generator) * 12 - 8)
+    zero = torch.zeros(3000)
+    footprint = UVFootprint(u, v, scale, zero, zero, scale)
+    encoded = EncodedMipTexture(pixels, decoding=decoding(kind, channels))
+    assert torch.equal(encoded.sample(footprint), MipTexture(values).sample(footprint))
 
 
 def test_a_relaid_renderer_sees_the_same_views_and_references():
