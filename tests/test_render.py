@@ -5,13 +5,19 @@ import math
 import numpy as np
 import pytest
 import torch
-from mesh_support import HALF, quad_mesh
+from mesh_support import HALF, quad_mesh, three_material_demo
 
 from geoscaler.cameras import Camera, validation_cameras
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
 from geoscaler.render import Renderer
-from geoscaler.texture import MipTexture, linear_to_srgb, srgb_to_linear
+from geoscaler.texture import (
+    EncodedMipTexture,
+    MipTexture,
+    linear_to_srgb,
+    srgb_to_linear,
+    texture_to_linear,
+)
 
 TAN = math.tan(math.radians(22.5))
 
@@ -116,6 +122,20 @@ def test_demo_asset_renders_deterministically_with_multi_chart_uvs():
     second = renderer.render(renderer.rasterize(camera), renderer.reference_textures())
     assert torch.equal(first, second)
     assert renderer.foreground(renderer.rasterize(camera)).float().mean() > 0.3
+
+
+def test_references_keep_the_originals_8bit_texels_once_and_render_as_float_chains_do():
+    mesh = three_material_demo()  # materials 0 and 1 show one image, 2 none
+    image = mesh.materials[0].base_color_texture
+    renderer = Renderer(mesh, "cpu", Evaluation(image_size=48))
+    chains = renderer.reference_textures()
+    assert isinstance(chains[0], EncodedMipTexture) and chains[1] is chains[0]
+    assert chains[2] is None
+    assert chains[0].codes.data_ptr() == image.ctypes.data  # the image itself, no float level 0
+    floats = [MipTexture(texture_to_linear(image))] * 2 + [None]
+    for camera in validation_cameras()[:3]:
+        gbuffer = renderer.rasterize(camera)
+        assert torch.equal(renderer.render_reference(gbuffer), renderer.render(gbuffer, floats))
 
 
 def test_a_layout_given_per_face_corner_renders_as_per_vertex_uvs_do():
