@@ -9,9 +9,10 @@ Conventions (used everywhere in the project):
 
 - UVs follow OpenGL/OBJ: ``v = 0`` is the bottom row of the texture image. Texture arrays
   are stored as images are, row 0 at the top, so texel row ``y`` holds ``v = 1 - (y + 0.5) / H``.
-- Vertices are split at UV seams: one row of ``positions``/``uvs``/``normals`` per distinct
-  (position, UV) pair. ``vertex_to_point`` welds them back to 3D points by position
-  (:func:`weld_points`).
+- Vertices are split at UV seams and hard edges: one row of ``positions``/``uvs``/``normals``
+  (and ``attributes``) per distinct (position, UV, normal, attributes) tuple, so every face
+  corner keeps what the file gave it. ``vertex_to_point`` welds them back to 3D points by
+  position (:func:`weld_points`).
 """
 
 from __future__ import annotations

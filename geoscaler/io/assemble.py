@@ -2,8 +2,9 @@
 
 The format readers (:mod:`geoscaler.io.obj`, :mod:`geoscaler.io.gltf`) turn a file into placed
 parts (:class:`Part`) and material builders; :func:`assemble` joins them, keeps the materials
-the faces use, welds vertices by exact (position, UV, extra attributes) and points by exact
-position, and takes normals from the file where it has them.
+the faces use, welds vertices that agree exactly on every attribute the output carries
+(position, UV, normal, extra attributes) and points by exact position, and takes normals from
+the file where it has them (computed over points elsewhere).
 """
 
 from __future__ import annotations
@@ -80,23 +81,23 @@ def assemble(
     positions, uvs, normals, faces, face_material = _concatenate(parts, slot)
     attributes = _attributes(path, parts)
     check_vertices(positions, uvs, str(path))
-    key = np.concatenate([positions, uvs, *attributes.values()], axis=1)
+    normals = _unit_normals(normals)
+    key = np.concatenate([positions, uvs, normals, *attributes.values()], axis=1)
     group, first = first_occurrence_groups(key)
     faces = group[faces]
     keep = np.zeros(len(first), dtype=bool)
     keep[faces] = True
     renumber = np.cumsum(keep) - 1
     faces, first = renumber[faces], first[keep]
-    positions, uvs = positions[first], uvs[first]
+    positions, uvs, normals = positions[first], uvs[first], normals[first]
     vertex_to_point, _ = first_occurrence_groups(positions)
-    file_normals = _merge_normals(normals, group, keep)
     computed = compute_vertex_normals(positions, faces, vertex_to_point)
-    has = np.isfinite(file_normals).all(axis=1)
+    has = normals[:, 0] != NO_NORMAL
     mesh = TexturedMesh(
         positions=positions,
         faces=faces.astype(np.int64),
         uvs=uvs,
-        normals=np.where(has[:, None], file_normals, computed).astype(np.float32),
+        normals=np.where(has[:, None], normals, computed).astype(np.float32),
         vertex_to_point=vertex_to_point,
         face_material=face_material,
         materials=materials,
@@ -172,17 +173,12 @@ def _attributes(path: Path, parts: list[Part]) -> dict[str, np.ndarray]:
     return out
 
 
-def _merge_normals(normals: np.ndarray, group: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    """Average the file normals of the rows welded into each kept vertex (NaN: none)."""
-    has = np.isfinite(normals).all(axis=1)
-    unit = np.zeros_like(normals)
-    unit[has] = normalize_rows(normals[has], np.zeros(3))
-    count = len(keep)
-    summed = np.stack(
-        [np.bincount(group[has], weights=unit[has, k], minlength=count) for k in range(3)], axis=1
-    )
-    length = np.linalg.norm(summed, axis=1)
-    merged = np.full((count, 3), np.nan)
-    good = length > 1e-12
-    merged[good] = summed[good] / length[good, None]
-    return merged[keep]
+NO_NORMAL = np.float32(2.0)
+"""What :func:`_unit_normals` writes for a vertex the file gives no usable normal: no unit
+vector has it, so such vertices weld only with each other."""
+
+
+def _unit_normals(normals: np.ndarray) -> np.ndarray:
+    """``(N, 3)`` float32 unit file normals of ``(N, 3)`` float64 ``normals``; rows that are
+    NaN (the file has none) or of zero length hold :data:`NO_NORMAL`."""
+    return normalize_rows(normals, np.full(3, NO_NORMAL)).astype(np.float32)
