@@ -35,6 +35,7 @@ import numpy as np
 import torch
 
 from geoscaler.cameras import sample_extent
+from geoscaler.io.slots import slot_info
 from geoscaler.mesh import TexturedMesh
 from geoscaler.packing import (
     SCALE_TOLERANCE,
@@ -153,17 +154,6 @@ class Atlas:
 
 
 # ------------------------------------------------------------------------------ which materials
-
-
-def slot_info(material_properties: dict, slot: str) -> dict:
-    """The glTF texture-info object of ``slot`` (``"normalTexture"`` or
-    ``"EXTENSION/field"``) from a material's properties (empty when absent)."""
-    extension, _, name = slot.rpartition("/")
-    if extension:
-        holder = material_properties.get("extensions", {}).get(extension, {})
-        return holder.get(name, {}) if isinstance(holder, dict) else {}
-    info = material_properties.get(slot, {})
-    return info if isinstance(info, dict) else {}
 
 
 def layout_groups(

@@ -15,8 +15,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from geoscaler.atlas import Atlas, slot_info
+from geoscaler.atlas import Atlas
 from geoscaler.bake import ChartMaps, bake
+from geoscaler.io.slots import slot_info
 from geoscaler.maps import METHOD_NAMES, resize_map, texture_class
 from geoscaler.mesh import Material, SourceImage, TexturedMesh
 from geoscaler.protocol import BYTES_PER_TEXEL

@@ -1,9 +1,10 @@
-"""What GeoScaler writes passes the Khronos glTF-Validator with 0 errors (issue 15).
+"""What GeoScaler writes passes the Khronos glTF-Validator with 0 errors.
 
 The validator is the npm package ``gltf-validator`` that ``make test`` installs into ``.tools/``
 (pinned in the Makefile). One node process validates every file: the built-in demo asset, the
 hand-made asset of ``io_assets`` (TANGENT, COLOR_0, TEXCOORD_1, ``texCoord: 1``,
-``KHR_texture_transform``, ``KHR_materials_clearcoat``, a shared image, JPEG and PNG), each as
+``KHR_texture_transform``, ``KHR_materials_clearcoat``, a shared image, JPEG and PNG), a
+triangle whose base colour has a ``KHR_texture_transform`` (mirror, turn, offset), each as
 loaded and with its textures changed, as .gltf and .glb, WebP once, and the Poly Haven sofa and
 stool and the WebP cat from ../shared/data when they are there. Skipped only without node.
 """
@@ -19,6 +20,7 @@ import pytest
 from conftest import DATA_DIR, ONE_VIEW
 from gltf_validator import ValidatorMissing, validate
 from io_assets import rich_gltf
+from mesh_support import write_gltf
 
 from geoscaler.cli import main
 from geoscaler.io import load_mesh, save_mesh
@@ -46,6 +48,12 @@ def outputs(folder: Path) -> dict[str, Path]:
     rich = load_mesh(rich_gltf(folder / "rich-input"))
     cases.update({"rich": (rich, None), "rich-halved": (halved(rich), None)})
     cases["rich-webp"] = (rich, "webp")
+    transform = {"offset": [0.25, -0.5], "rotation": 0.5, "scale": [-1.0, 1.5]}
+    material = {"pbrMetallicRoughness": {"baseColorTexture": {
+        "index": 0, "extensions": {"KHR_texture_transform": transform}}}}  # fmt: skip
+    uvs = np.float32([[0.1, 0.9], [0.7, 0.8], [0.2, 0.15]])
+    cases["transformed"] = (load_mesh(write_gltf(folder / "transformed-input", uvs,
+                                                 material=material)), None)  # fmt: skip
     for name, entry in DEVELOPMENT.items():
         if (DATA_DIR / entry).is_file():
             mesh = load_mesh(DATA_DIR / entry)
@@ -103,7 +111,8 @@ def reports(tmp_path_factory) -> dict[str, dict]:
 
 CASES = ["rich-input.gltf"] + [
     f"{name}{suffix}"
-    for name in ["demo", "demo-webp", "rich", "rich-halved", "rich-webp", "downsampled-demo"]
+    for name in ["demo", "demo-webp", "rich", "rich-halved", "rich-webp", "transformed"]
+    + ["downsampled-demo"]
     + ["downsampled-sofa"]
     + [f"{n}{h}" for n in DEVELOPMENT for h in ("", "-halved")]
     for suffix in (".gltf", ".glb")

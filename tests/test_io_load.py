@@ -442,9 +442,17 @@ BROKEN_INPUTS: dict[str, tuple[Callable[[Path], Path], str]] = {
         OUTSIDE,
     ),
     "gltf-second-uv-set": (with_base_color_info({"texCoord": 1}), "TEXCOORD_1"),
-    "gltf-uv-transform": (
-        with_base_color_info({"extensions": {"KHR_texture_transform": {}}}),
-        "KHR_texture_transform",
+    "gltf-uv-transform-zero-scale": (
+        with_base_color_info({"extensions": {"KHR_texture_transform": {"scale": [0, 1]}}}),
+        "scale of 0",
+    ),
+    "gltf-uv-transform-short-offset": (
+        with_base_color_info({"extensions": {"KHR_texture_transform": {"offset": [1]}}}),
+        "offset must be 2 finite number(s)",
+    ),
+    "gltf-uv-transform-second-uv-set": (
+        with_base_color_info({"extensions": {"KHR_texture_transform": {"texCoord": 1}}}),
+        "TEXCOORD_1",
     ),
     "gltf-bad-json": (raw_file("bad.gltf", b'{"asset": {"version": "2.0"}, "mesh'), "JSON"),
     "gltf-compressed": (

@@ -32,6 +32,7 @@ from .gltf_scene import check_kept, gltf_parts
 from .images import open_embedded, source_image
 from .paths import resolve_reference
 from .slots import SPECULAR_GLOSSINESS, slot_path, texture_infos
+from .texture_transform import EXTENSION, apply, base_color_matrix, texture_coordinate_set
 
 # glTF enums (the OpenGL constants the glTF 2.0 specification uses).
 UNSIGNED_BYTE = 5121
@@ -51,7 +52,7 @@ TRIANGLES = 4
 
 # ----------------------------------------------------------------------------- reading
 
-# Required extensions this loader honours (KHR_texture_transform: refused on base colour).
+# Required extensions this loader honours (KHR_texture_transform: io/texture_transform.py).
 _REQUIRED_OK = {
     "EXT_texture_webp",
     "KHR_texture_transform",
@@ -82,7 +83,7 @@ def load_gltf(path: Path) -> tuple[list[Part], list[MaterialBuilder], list[Path]
     check_kept(doc, path)
     buffers = buffer_data(doc, path, root, chunk)
     check_data(doc, path, buffers)
-    parts = gltf_parts(doc, buffers, path)
+    parts = _fold_base_color_transforms(doc, gltf_parts(doc, buffers, path), path)
     images = _Images(doc, buffers, path, root, missing)
     builders = [
         lambda i=i: _gltf_material(path, doc, i, images)
@@ -277,7 +278,7 @@ def _gltf_material(path: Path, doc: dict, index: int, images: _Images) -> Materi
             slot == f"{SPECULAR_GLOSSINESS}/diffuseTexture" and BASE_COLOR not in textures
         )
         if is_base:
-            _check_base_color_info(info, path, name)
+            _check_base_color_info(info, path, name, transformable=slot == BASE_COLOR)
         image = images.get(image_index)
         if image is None:
             if is_base and image_index not in images.missing:
@@ -300,18 +301,34 @@ def _gltf_material(path: Path, doc: dict, index: int, images: _Images) -> Materi
     return Material(name, base, factor, properties, textures, sources)
 
 
-def _check_base_color_info(info: dict, path: Path, name: str) -> None:
-    if info.get("texCoord", 0) != 0:
+def _check_base_color_info(info: dict, path: Path, name: str, transformable: bool) -> None:
+    uv_set = texture_coordinate_set(info)
+    if uv_set != 0:
         raise GeoscalerError(
-            f"{path}: material {name!r} maps its base colour with TEXCOORD_{info['texCoord']}; "
+            f"{path}: material {name!r} maps its base colour with TEXCOORD_{uv_set}; "
             "GeoScaler supports TEXCOORD_0 only. Re-export with one UV set."
         )
-    if "KHR_texture_transform" in info.get("extensions", {}):
+    if not transformable and EXTENSION in info.get("extensions", {}):
         raise GeoscalerError(
-            f"{path}: material {name!r} transforms its base-colour UVs "
-            "(KHR_texture_transform), which GeoScaler does not support. Apply the transform "
-            "to the UVs in your 3D tool and re-export."
+            f"{path}: material {name!r} transforms the UVs of its {SPECULAR_GLOSSINESS} diffuse "
+            f"texture ({EXTENSION}), which GeoScaler reads on baseColorTexture only. Convert "
+            "the material to metallic-roughness in your 3D tool and re-export."
         )
+
+
+def _fold_base_color_transforms(doc: dict, parts: list[Part], path: Path) -> list[Part]:
+    """Parts whose material transforms its base colour, with the transform applied to their
+    UVs (:mod:`geoscaler.io.texture_transform`)."""
+    materials = doc.get("materials", [])
+    folded = []
+    for part in parts:
+        matrix = None
+        if part.material is not None and part.uvs is not None:
+            raw = materials[part.material]
+            name = raw.get("name") or f"material_{part.material}"
+            matrix = base_color_matrix(raw, f"{path}: material {name!r}")
+        folded.append(part if matrix is None else part._replace(uvs=apply(matrix, part.uvs)))
+    return folded
 
 
 def _gltf_properties(doc: dict, raw: dict, path: Path) -> dict[str, Any]:

@@ -31,6 +31,7 @@ from .gltf import (
 )
 from .paths import side_file
 from .slots import MTL_PROPERTIES, slot_path, texture_infos
+from .texture_transform import unfolded
 
 if TYPE_CHECKING:
     from .save import ImageOut
@@ -90,6 +91,7 @@ def gltf_files(
     shows (see :mod:`geoscaler.io.save`).
     """
     binary = path.suffix.lower() == ".glb"
+    mesh = unfolded(mesh)  # the UVs the file's KHR_texture_transform expects
     buffer = _BinaryBuffer()
     attributes = {
         "POSITION": buffer.accessor(mesh.positions.astype(np.float32), "VEC3", ARRAY_BUFFER, True),

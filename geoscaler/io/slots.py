@@ -53,6 +53,15 @@ def slot_path(slot: str) -> tuple[str, ...]:
     return ("extensions", extension, name)
 
 
+def slot_info(material_properties: dict, slot: str) -> dict:
+    """The glTF texture-info object of ``slot`` in a material's properties (:attr:`Material.
+    properties`; the base colour's under ``pbrMetallicRoughness``), empty when absent."""
+    node = material_properties
+    for key in slot_path(slot):
+        node = node.get(key) if isinstance(node, dict) else None
+    return node if isinstance(node, dict) else {}
+
+
 def in_gltf(slot: str) -> bool:
     """Whether glTF can hold the slot (every slot but MTL's own)."""
     return not slot.startswith(MTL_PREFIX)
