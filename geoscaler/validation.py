@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import hashlib
 import math
-import time
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -31,6 +30,7 @@ import torch
 from scipy.special import ndtr, stdtrit
 
 from geoscaler.cameras import Camera, fibonacci_directions, spread_order, view_set_cameras
+from geoscaler.clock import WALL_CLOCK, Clock
 from geoscaler.metrics import evaluate, mean_metrics, psnr_fg
 from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, VALIDATION_DISTANCE
 from geoscaler.render import Renderer
@@ -38,25 +38,22 @@ from geoscaler.texture import linear_to_texture, texture_to_linear, to_rgb
 from geoscaler.views import ViewCache, ViewSet, mip_chains
 
 GUARD_VIEWS = 20
-"""Views of each guard set (near, far). With 12, a 60 s job froze 6 far views of the 4x banana
-and passed a candidate those 6 put 0.56 dB above the best filter and all 12 put 0.52 below
-bicubic: the views that a sharpened scan fails from far away are a few directions."""
+"""Views of each guard set (near, far): the views on which a sharpened scan fails from far away
+are a few directions, which a smaller set misses too easily (see
+docs/decisions/validation-guard-sets.md)."""
 MIN_FROZEN = {"Q": 3, "near": 3, "far": 3}
-"""Views a set keeps at least when frozen (fewer where it has fewer). With one guard view, a 15 s
-budget shipped a frypan 0.39 dB below Lanczos on the protocol's far set; with two, the floor's
-margin is 1.84 standard errors of two values (:func:`floor_margin`): `make demo` beside a busy
-loop froze 3 / 2 / 2 views and shipped Lanczos where `direct` validated 4.8, 4.4 and 3.0 dB
-above it. Three take 1.19."""
+"""Views a set keeps at least when frozen (fewer where it has fewer): one view has no spread to
+judge its gain by, and with two the floor's margin (:func:`floor_margin`, 1.84 standard errors)
+turns away candidates well above the filters (see docs/decisions/validation-guard-sets.md)."""
 SET_NAMES = ("Q", "near", "far")
 
 FLOOR_CONFIDENCE = float(ndtr(1.0))
 """One-sided confidence (0.84) with which a candidate's mean per-view gain over the floor's
 baseline must clear zero on each set: the mean less Student's t quantile for the views' count
 (:func:`floor_margin`) times its standard error. On many views that is one standard error; on
-the 2 far views a 15 s job may validate on, 1.84 (one standard error of two values let a 15 s
-banana ship 0.17 dB below Lanczos on the protocol's far views). On the 4x banana a candidate
-0.56 dB above the best filter on the 6 far views it was validated on was 0.66 dB below bicubic
-on the protocol's 60 (per-view standard deviation 1.5 dB: one standard error was 0.61)."""
+the few views a short budget validates on, t widens it (1.84 for 2), since a few views' mean
+can disagree with the protocol's full set (``benchmarks/budget.py``; see
+docs/decisions/validation-floor-confidence.md)."""
 
 
 def floor_margin(views: int) -> float:
@@ -155,6 +152,7 @@ class Validation:
         scorings_after: full-metric scorings of Q's frozen views the caller will run after
             the method (a downsampling job's report: the result and each baseline); the loop
             keeps time for them under a budget (validated textures are not rendered again).
+        clock: what the unit costs of caching, rendering and scoring are timed on.
 
     Attributes:
         sets: set name -> a :class:`ViewCache` of its views with the taps of ``sizes``.
@@ -167,7 +165,9 @@ class Validation:
         sizes: Sequence[tuple[int, int] | None],
         baselines: Mapping[str, Sequence[np.ndarray | None]] | None = None,
         scorings_after: int = 0,
+        clock: Clock = WALL_CLOCK,
     ):
+        self.clock = clock
         self.sets = {
             name: ViewCache(view_set, sizes, with_taps=True) for name, view_set in views.items()
         }
@@ -212,20 +212,19 @@ class Validation:
 
         Fewest, not the smallest share: a candidate ships only where it clears the floor on
         every set (:func:`paired_gap`), so the set with the fewest views decides, and its
-        margin grows fast as its views get few. By shares the guards had a third of Q's views:
-        the demo froze 4 / 2 / 2 views and shipped Lanczos where `direct` validated 3.6, 4.7
-        and 3.4 dB above it, 1.65 dB short of the floor's margin with 2 views."""
+        margin grows fast as its views get few: caching by shares leaves the guards too few
+        (see docs/decisions/validation-guard-sets.md)."""
         if self.frozen:
             return False
         waiting = [name for name, cache in self.sets.items() if not cache.views.complete]
         if not waiting:
             return False
         name = min(waiting, key=lambda n: len(self.sets[n]))
-        started = time.perf_counter()
+        started = self.clock.now()
         cache = self.sets[name]
         cache.views.cache_next()
         cache.find_taps(len(cache) - 1)
-        self._view_cost.add(time.perf_counter() - started)
+        self._view_cost.add(self.clock.now() - started)
         if not self._render_seconds:
             self._measure(cache)
         return True
@@ -275,12 +274,12 @@ class Validation:
             values = []
             for view in range(self.counts[name]):
                 reference, foreground = cache.views.reference(view)
-                started = time.perf_counter()
+                started = self.clock.now()
                 image = cache.render(view, mips, uvs)
-                rendered = time.perf_counter()
+                rendered = self.clock.now()
                 if name == "Q":
                     values.append(evaluate(image[None], reference[None], foreground[None]))
-                    metric_seconds += time.perf_counter() - rendered
+                    metric_seconds += self.clock.now() - rendered
                 else:
                     values.append(psnr_fg(image[None], reference[None], foreground[None]))
                 render_seconds += rendered - started
@@ -382,13 +381,13 @@ class Validation:
         unit costs until the first validation measures them again."""
         device = cache.renderer.device
         probe = [None if s is None else torch.zeros(*s, 3, device=device) for s in self.sizes]
-        started = time.perf_counter()
+        started = self.clock.now()
         image = cache.render(0, probe, None)
-        self._render_seconds = time.perf_counter() - started
+        self._render_seconds = self.clock.now() - started
         reference, foreground = cache.views.reference(0)
-        started = time.perf_counter()
+        started = self.clock.now()
         evaluate(image[None], reference[None], foreground[None])
-        self._metric_seconds = time.perf_counter() - started
+        self._metric_seconds = self.clock.now() - started
 
 
 def _ranked(value: float) -> float:
