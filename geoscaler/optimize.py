@@ -55,17 +55,12 @@ WIDE_RANGE = (1.5, 4.2)
 TRAINING_RANGES = (RANGE_S, WIDE_RANGE)
 """The loop's default training distances: views taken in turn from range S, where Q is measured,
 and from :data:`WIDE_RANGE`, so that the texture is not sharpened for one distance at the cost
-of another. Against the wide range alone (60 s, 4x, one run each; gains over bicubic on the
-protocol's Q / near / far): bob +1.04 / +0.99 / +0.79 -> +1.11 / +1.10 / +0.69 dB, spot
-+1.78 / +1.87 / +1.75 -> +1.91 / +1.95 / +1.83, frypan +1.73 / +1.45 / +2.27 -> +1.78 / +1.53 /
-+2.17; the banana, whose far floor binds, +1.33 and +0.82 -> +0.72 (its start) and +0.84.
-Range S alone did as well on those three and shipped the banana's start. See the README's
-"training range" note."""
+of another (``benchmarks/budget.py --loop``; see docs/decisions/training-distance-ranges.md)."""
 FINISH_MARGIN = 1.5
-"""Factor on the estimate of what must follow the loop (validations, the views they still
-need, the caller's scoring) before every step, the first included. Without it for the first
-step (commit 5532119, 15 s budgets) the mug, the lego and the peach made one step each instead
-of none, which gained nothing worth having, and the peach's busy run overran its budget by 14%."""
+"""Factor on the estimate of what must follow the loop (the validations still owed and the
+views they need; the caller's ``reserve`` is added as it is), checked before every step, the
+first included: the estimate is rough, and a single step squeezed into a short budget gains
+little and can overrun it (``benchmarks/budget.py``; see docs/decisions/finish-margin.md)."""
 CACHING_SHARE = 0.4
 """Under a time budget, views are cached within this share of it: then the training pool stops
 growing and the validation sets freeze at what is cached."""
