@@ -60,19 +60,14 @@ DEMO_MESH_NAME = "geoscaler_pebble.glb"
 DEMO_SCALE = 4
 DEMO_TIME_BUDGET = 75.0
 DEMO_STEPS = 120
-"""Budget and step limit of ``direct`` in ``geoscaler demo``, caches included. Measured on the
-idle 2-core machine (CPU, 2 torch threads), ``make demo`` from a fresh ``assets/``: the first
-step 21.5 s after the start (the asset built, the layout planned and baked, views cached), then
-64 steps (validations included) until the budget stopped them; 74.3 s wall clock in all,
-+4.28 dB PSNR-fg over bicubic on the validation's Q. At commit b8d171f, on a 2-core machine 2-3
-times slower: 57.3 s wall, 120 steps, +5.09 dB; beside a busy loop 68.1 s, 120 steps, +5.13 dB.
-The step limit lets the cosine schedule end where the machine is fast enough; the budget bounds
-the demo's time where it is not."""
+"""Budget and step limit of ``direct`` in ``geoscaler demo``, caches included: the step limit
+lets the cosine schedule end where the machine is fast enough; the budget bounds the demo's time
+where it is not (see docs/decisions/demo-budget.md)."""
 DEMO_UV = "repack"
 """``--uv`` of the demo's ``direct``: the pebble's atlas is a scan's, mostly empty, and the demo
-shows what repacking it gains. (``auto``'s race spends most of the demo's budget on its fixed
-costs here, the new layout's validation taps and the loser's trial: at commit 2d45419 ``make
-demo`` made 22 steps and gained +2.91 dB where ``repack`` gained about +4.8 with 120.)"""
+shows what repacking it gains. ``auto``'s race would spend most of the demo's budget on its
+fixed costs here, the new layout's validation taps and the loser's trial (see
+docs/decisions/demo-budget.md)."""
 
 
 def demo(
