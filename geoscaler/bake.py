@@ -1,4 +1,4 @@
-"""Baking a texture into a new UV layout of the same mesh (issue 17).
+"""Baking a texture into a new UV layout of the same mesh.
 
 Every texel of the new texture is the average of ``supersample x supersample`` samples, each
 the original texture looked up where the chart's map sends the sample back in the old layout
@@ -92,14 +92,11 @@ def bake(
     chart (its nearest), reads the original where the chart's map sends it back: the
     original's own texels there, around a chart too, so a bilinear or coarser lookup at a
     chart's rim sees what it saw in the original (its gutters, black on a scan, darken the
-    coarse levels the far views read: the banana's bake alone at 1024 from 4096, 6 far
-    views, 52.61 dB PSNR-fg with 8 texels read around each chart, 54.43 with 32). With
-    ``oversample > 1`` the bake is then resized to ``size``: colour with Pillow's Lanczos on
-    its stored sRGB values, as the ``lanczos`` baseline but in float (rounded to 8 bits once),
-    other classes by :func:`geoscaler.maps.resize_map`. Measured on spot
-    at 4x (PSNR-fg on 10 views of Q, the mesh's own layout): an area-filtered bake at ``size``
-    30.19 dB, Lanczos in linear light 30.70 dB, Lanczos on sRGB values 31.62 dB (bicubic
-    31.26): the protocol scores sRGB images, and filtering in linear light softens edges.
+    coarse levels the far views read). With ``oversample > 1`` the bake is then resized to
+    ``size``: colour with Pillow's Lanczos on its stored sRGB values, as the ``lanczos``
+    baseline but in float (rounded to 8 bits once), other classes by
+    :func:`geoscaler.maps.resize_map`: the protocol scores sRGB images, and filtering in linear
+    light softens edges (``benchmarks/far_views.py``; see docs/decisions/bake-filtering.md).
 
     Args:
         pixels: ``(H, W, C)`` uint8 map in the old layout (repeat addressing).
