@@ -1,4 +1,4 @@
-"""Every texture map of a material resized as what it holds (issue #15).
+"""Every texture map of a material resized as what it holds.
 
 A map is an ``(H, W, C)`` uint8 array, row 0 at the top, ``C`` in 1..4; it is resized to
 ``size = (h, w)`` with ``1 <= h <= H`` and ``1 <= w <= W`` (any ratio, also non-integer), and

@@ -1,5 +1,5 @@
-"""``--uv``: what ``direct`` does with the mesh's UV layout (issue 17). Import-light: the
-command line builds its parser from it without importing torch."""
+"""``--uv``: what ``direct`` does with the mesh's UV layout. Import-light: the command
+line builds its parser from it without importing torch."""
 
 from __future__ import annotations
 
