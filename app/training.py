@@ -11,8 +11,8 @@ On 2 cores the worker runs torch on one thread (``torch.set_num_threads(1)``, pr
 the UI thread and the GL driver keep the other core. While the user drags the camera the worker
 holds back (:meth:`Training.user_moved`): after each step it sleeps as long as the step took,
 so the UI, the GL driver's threads and the X server get the CPU half the time. It runs at the
-priority of the app: an OS priority (it used to run at nice 19) also yields to every other busy
-process, and a busy neighbour then stopped the optimiser instead of slowing it. The
+priority of the app: an OS priority would also yield to every other busy process, and a busy
+neighbour would then stop the optimiser instead of slowing it. The
 interpreter hands the GIL over every 0.5 ms instead of 5 ms, so the UI thread waits less for
 it between the worker's torch calls.
 """
@@ -48,8 +48,9 @@ SNAPSHOT_INTERVAL = 0.5
 conversion and a mip chain, about 0.1 s for 1024 x 1024 on one core)."""
 TORCH_THREADS = 1
 GIL_SWITCH_INTERVAL = 0.0005
-"""Seconds (``sys.setswitchinterval``); with nice 19, frames orbiting while training took 44
-instead of 46 ms (two timed runs each of the lego under Xvfb)."""
+"""Seconds (``sys.setswitchinterval``), a tenth of the interpreter's 5 ms: the UI thread waits
+less for the GIL between the worker's torch calls, so frames orbiting while training come a
+little sooner (``benchmarks/bench_app.py``, mode ``orbit``)."""
 USER_MOVE_HOLD = 0.3
 """Seconds after the camera last moved during which the worker holds back after each step."""
 MAX_HOLD = 1.0

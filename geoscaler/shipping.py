@@ -73,8 +73,8 @@ def alpha_cutoff(material: Material) -> float | None:
 def with_lossless_base_colors(mesh: TexturedMesh) -> TexturedMesh:
     """``mesh`` with every base colour's image marked PNG (sharing kept): the base colour ships
     as the job validated it, 8-bit, and a lossy re-encoding (a JPEG or WebP input's format)
-    would ship something else (JPEG q90 took 2.7 dB off the stool's optimised 256 x 256
-    texture). Its other maps keep their input's format."""
+    would ship something else, measurably worse than what was validated. Its other maps keep
+    their input's format."""
     marked: dict[int, SourceImage] = {}
     materials = []
     for material in mesh.materials:
