@@ -23,18 +23,12 @@ import torch
 from PIL import Image
 from scipy.ndimage import distance_transform_edt
 
+from geoscaler.encoded import Decoding, EncodedMipTexture, decode_codes
 from geoscaler.filters import resize_float
 from geoscaler.maps import resize_map
 from geoscaler.raster import rasterize
 from geoscaler.sizes import COLOR, NORMAL
-from geoscaler.texture import (
-    Decoding,
-    EncodedMipTexture,
-    UVFootprint,
-    decode_codes,
-    linear_to_srgb,
-    srgb_to_linear,
-)
+from geoscaler.texture import UVFootprint, linear_to_srgb, srgb_to_linear
 
 
 def decode(pixels: np.ndarray, kind: str) -> torch.Tensor:

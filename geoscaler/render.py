@@ -19,12 +19,12 @@ import torch
 
 from geoscaler.cameras import Camera
 from geoscaler.devices import mesh_tensors, resolve_device
+from geoscaler.encoded import EncodedMipTexture
 from geoscaler.filters import reference_textures
 from geoscaler.mesh import TexturedMesh
 from geoscaler.protocol import PROTOCOL_EVALUATION, Evaluation
 from geoscaler.raster import GBuffer, rasterize
 from geoscaler.texture import (
-    EncodedMipTexture,
     MipTexture,
     UVFootprint,
     linear_to_srgb,

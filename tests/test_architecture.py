@@ -31,7 +31,7 @@ LAYERS = [
         "packing",
         "uvmodes",
     ],
-    ["mesh", "cameras"],
+    ["mesh", "cameras", "encoded"],
     ["filters", "io", "procedural"],
     ["render", "uvmaps", "maps", "soft"],
     ["views", "nn", "atlas", "bake"],

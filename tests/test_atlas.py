@@ -27,6 +27,7 @@ from geoscaler.atlas import (
 )
 from geoscaler.bake import ChartMaps, bake, decode, decoding, encode
 from geoscaler.cameras import validation_cameras
+from geoscaler.encoded import EncodedMipTexture
 from geoscaler.filters import resize_float
 from geoscaler.mesh import Material, TexturedMesh, compute_vertex_normals
 from geoscaler.packing import (
@@ -39,7 +40,7 @@ from geoscaler.packing import (
 )
 from geoscaler.render import Renderer
 from geoscaler.sizes import COLOR, DATA, NORMAL
-from geoscaler.texture import EncodedMipTexture, MipTexture, UVFootprint, srgb_to_linear
+from geoscaler.texture import MipTexture, UVFootprint, srgb_to_linear
 from geoscaler.uvmaps import chart_labels, cut_charts
 from geoscaler.views import ViewSet
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from geoscaler import texture as texture_module
+from geoscaler import encoded as encoded_module
+from geoscaler.encoded import EncodedMipTexture
 from geoscaler.texture import (
-    EncodedMipTexture,
     MipLayout,
     MipTexture,
     TapMatrix,
@@ -238,7 +238,7 @@ def test_an_encoded_chain_samples_the_bits_of_the_float_chain_of_its_texture(sha
 def test_an_encoded_chain_decodes_level_one_a_band_at_a_time(monkeypatch):
     codes = np.random.default_rng(5).integers(0, 256, (70, 24, 3), dtype=np.uint8)
     whole = EncodedMipTexture(codes).coarse
-    monkeypatch.setattr(texture_module, "ENCODED_BAND_TEXELS", 2 * 24 * 4)  # 4 rows of level 1
+    monkeypatch.setattr(encoded_module, "ENCODED_BAND_TEXELS", 2 * 24 * 4)  # 4 rows of level 1
     assert torch.equal(EncodedMipTexture(codes).coarse, whole)
 
 
