@@ -20,6 +20,7 @@ import moderngl
 import numpy as np
 from imgui_bundle import hello_imgui, imgui, immapp
 
+from geoscaler.clock import WALL_CLOCK
 from geoscaler.downsampling import Job, check_output_name, export
 from geoscaler.errors import GeoscalerError
 from geoscaler.io import (
@@ -312,11 +313,11 @@ class App:
 
     def _pace(self) -> None:
         """Sleep out the rest of a 1 / MAX_FPS frame."""
-        now = time.perf_counter()
+        now = WALL_CLOCK.now()
         wait = self.last_frame + 1.0 / MAX_FPS - now
         if wait > 0:
             time.sleep(wait)
-        self.last_frame = time.perf_counter()
+        self.last_frame = WALL_CLOCK.now()
 
     def _menus(self) -> None:
         """The menu bar: File, then hello_imgui's View (windows, the default layout, theme)."""

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from geoscaler.arguments import DEFAULT_TIME_BUDGET, check_method, check_scale, method_options
+from geoscaler.clock import WALL_CLOCK
 from geoscaler.downsampling import product_evaluation
 from geoscaler.events import Controller, ProgressEvent
 from geoscaler.job import Downsampled, JobObserver, checked_output_sizes, downsample
@@ -158,12 +159,12 @@ class Training:
         self.started = 0.0
         self.seconds = 0.0  # wall time of the whole run, set when it ends
         self._last_snapshot = 0.0
-        self._user_moved_at = -math.inf  # time.perf_counter() of the camera's last move
-        self._last_step_at = 0.0  # the worker's time.perf_counter() after its last step
+        self._user_moved_at = -math.inf  # WALL_CLOCK.now() of the camera's last move
+        self._last_step_at = 0.0  # the worker's WALL_CLOCK.now() after its last step
 
     def start(self) -> None:
         sys.setswitchinterval(GIL_SWITCH_INTERVAL)
-        self.started = time.perf_counter()
+        self.started = WALL_CLOCK.now()
         self.thread.start()
 
     def pause(self) -> None:
@@ -181,7 +182,7 @@ class Training:
     def user_moved(self) -> None:
         """The user moved the camera (UI thread): for :data:`USER_MOVE_HOLD` seconds the
         worker sleeps after each step as long as the step took (:meth:`hold_back`)."""
-        self._user_moved_at = time.perf_counter()
+        self._user_moved_at = WALL_CLOCK.now()
 
     def hold_back(self, now: float) -> float:
         """Seconds the worker should sleep after a step that ended at ``now``: as long as the
@@ -239,7 +240,7 @@ class Training:
             )
             rows = {row["method"]: row for row in done.rows}
             best = rows[settings.method]["psnr_fg"]
-            self.seconds = time.perf_counter() - self.started
+            self.seconds = WALL_CLOCK.now() - self.started
             textures = [None if t is None else t[..., :3] for t in done.result.textures]
             self._set(
                 result=done,
@@ -250,7 +251,7 @@ class Training:
                 texture_version=self.state.texture_version + 1,
             )
         except Exception as error:  # shown in the UI; the app keeps running
-            self.seconds = time.perf_counter() - self.started
+            self.seconds = WALL_CLOCK.now() - self.started
             self._set(phase="failed", error=f"{type(error).__name__}: {error}")
 
     @torch.no_grad()
@@ -290,7 +291,7 @@ class Training:
                 state.validation_psnr.append(event.validation_psnr)
             elif event.phase == "done":
                 state.phase = "scoring on the validation views"
-        now = time.perf_counter()
+        now = WALL_CLOCK.now()
         if event.phase == "step":
             time.sleep(self.hold_back(now))
         live = now - self._last_snapshot > SNAPSHOT_INTERVAL

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import copy
 import math
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -35,6 +34,7 @@ import numpy as np
 import torch
 
 from geoscaler.cameras import sample_extent
+from geoscaler.clock import Budget, unlimited
 from geoscaler.io.slots import slot_info
 from geoscaler.mesh import TexturedMesh
 from geoscaler.packing import (
@@ -321,7 +321,7 @@ def repack(
     tri_ids: Sequence[torch.Tensor],
     samples_per_side: int,
     detail: Sequence[float | None] | None = None,
-    deadline: float | None = None,
+    budget: Budget | None = None,
     align: bool = True,
 ) -> Atlas:
     """The new layout of ``mesh`` for textures of ``sizes`` (per material), charts scaled by
@@ -331,7 +331,7 @@ def repack(
     :data:`CUT_SIDE` of its atlas, those charts are cut (:func:`geoscaler.uvmaps.cut_charts`)
     into pieces at most that long at the first packing's scales and packed again, and the
     cut layout is taken where its ``k`` is at least :data:`CUT_GAIN` times the whole charts'.
-    The cut is not planned where, at the whole plan's cost, it would end past ``deadline``.
+    The cut is not planned where, at the whole plan's cost, it would not fit ``budget``.
 
     Args:
         mesh: the mesh.
@@ -342,26 +342,26 @@ def repack(
             the output's; None: unknown): no chart gets more texels than the original has,
             and where the far views minify the new texture each chart covers a power-of-two
             block of the original's texels (:func:`alignment_for`). None: neither.
-        deadline: ``time.perf_counter()`` by which the plan must be made (None: no limit):
-            the packing's search stops there (:func:`~geoscaler.packing.pack`).
+        budget: the time the plan must be made in (None: no limit): the packing's search
+            stops at its end (:func:`~geoscaler.packing.pack`).
         align: False: charts are never aligned (the other layout a race weighs).
 
     Returns:
         The :class:`Atlas`, each packed group's guards checked (:func:`group_problems`).
     """
     charts = chart_labels(mesh)
-    started = time.perf_counter()
-    whole = plan_charts(mesh, sizes, charts, tri_ids, samples_per_side, detail, deadline, align)
+    budget = budget or unlimited()
+    started = budget.now()
+    whole = plan_charts(mesh, sizes, charts, tri_ids, samples_per_side, detail, budget, align)
     longest = cut_lengths(mesh, whole, charts)
     facts = {"charts_cut": int(np.isfinite(longest).sum()), "k_whole": whole.facts["k"]}
     atlas = whole
-    seconds = time.perf_counter() - started  # what the cut's plan costs too, about
-    late = deadline is not None and time.perf_counter() + seconds > deadline
-    if facts["charts_cut"] and late:
+    seconds = budget.now() - started  # what the cut's plan costs too, about
+    if facts["charts_cut"] and not budget.fits(seconds):
         facts["cut_skipped"] = "the time budget left no time to plan the cut"
     elif facts["charts_cut"]:
         pieces = cut_charts(mesh, charts, longest)
-        cut = plan_charts(mesh, sizes, pieces, tri_ids, samples_per_side, detail, deadline, align)
+        cut = plan_charts(mesh, sizes, pieces, tri_ids, samples_per_side, detail, budget, align)
         facts["k_cut"] = cut.facts["k"]
         if cut.groups == whole.groups and cut.facts["k"] >= CUT_GAIN * whole.facts["k"]:
             atlas = cut  # (a group the cut plan could not pack would make k incomparable)
@@ -392,11 +392,11 @@ def plan_charts(
     tri_ids: Sequence[torch.Tensor],
     samples_per_side: int,
     detail: Sequence[float | None] | None,
-    deadline: float | None = None,
+    budget: Budget | None = None,
     align: bool = True,
 ) -> Atlas:
     """The layout of ``charts`` (``(F,)`` labels, each chart moved whole) as :func:`repack`
-    plans it, by ``deadline`` (:func:`~geoscaler.packing.pack`)."""
+    plans it, within ``budget`` (:func:`~geoscaler.packing.pack`)."""
     groups, kept = layout_groups(mesh, sizes, charts)
     count = int(charts.max()) + 1 if len(charts) else 0
     chart_area = np.bincount(charts, np.abs(uv_areas(mesh.uvs, mesh.faces)), minlength=count)
@@ -423,7 +423,7 @@ def plan_charts(
                 chart_area,
                 samples_per_side,
                 detail,
-                deadline,
+                budget,
                 align,
             )
         except PackingError as error:  # AtlasError included: that group keeps its layout
@@ -441,10 +441,10 @@ def _lay_out(
     chart_area: np.ndarray,
     samples_per_side: int,
     detail: Sequence[float | None] | None,
-    deadline: float | None,
+    budget: Budget | None,
     align: bool = True,
 ) -> None:
-    """Pack the charts of ``materials`` into ``atlas`` (in place) by ``deadline``, aligned
+    """Pack the charts of ``materials`` into ``atlas`` (in place) within ``budget``, aligned
     (:func:`alignment_for`, unless ``align`` is False) where they fit so, or leave ``atlas`` as
     it was and raise :class:`~geoscaler.packing.PackingError` when they do not fit, break a
     guard or found no packing in time."""
@@ -459,15 +459,15 @@ def _lay_out(
     grid, packed, spacing = cap if blocks > 1 else None, None, padding + PACKER_MARGIN
     if grid is not None:
         try:  # the spacing leaves room for rounding the offsets
-            packed = pack(group, scales, size, spacing + blocks, rotate, deadline, grid)
+            packed = pack(group, scales, size, spacing + blocks, rotate, budget, grid)
         except PackingError:
             blocks, grid = 1, None  # aligned, the charts do not fit: unaligned
     if packed is None:
-        packed = pack(group, scales, size, spacing, rotate, deadline)
+        packed = pack(group, scales, size, spacing, rotate, budget)
         tpu = packed.texels_per_unit
         if cap is not None and (scales * tpu / size > cap).any():
             scales = np.minimum(scales, cap * size / tpu)
-            packed = pack(group, scales, size, spacing, rotate, deadline)
+            packed = pack(group, scales, size, spacing, rotate, budget)
     before = copy.deepcopy(atlas)
     offset = packed.offset + np.einsum("cij,cj->ci", packed.linear, shift)
     if grid is not None:

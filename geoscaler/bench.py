@@ -13,7 +13,6 @@ import io
 import math
 import shlex
 import sys
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from geoscaler.arguments import check_distances, check_method, check_scales, comparison_settings
+from geoscaler.clock import WALL_CLOCK, Clock
 from geoscaler.errors import GeoscalerError
 from geoscaler.io import SUPPORTED_SUFFIXES, find_assets, load_mesh
 from geoscaler.job import JobObserver, compare_mesh, prepare_out_dir
@@ -127,6 +127,7 @@ def bench_meshes(
     evaluation: Evaluation = PROTOCOL_EVALUATION,
     progress: bool = True,
     report: Callable[[str], None] | None = None,
+    clock: Clock = WALL_CLOCK,
 ) -> BenchResult:
     """Compare ``methods`` on every mesh; a mesh that fails is reported and skipped.
 
@@ -136,6 +137,7 @@ def bench_meshes(
         evaluation: image size and views of every mesh's renders (default: protocol 1).
         progress: show a tqdm bar on stderr.
         report: receives one line per skipped mesh (default: printed above the bar).
+        clock: where the time is read.
 
     Returns:
         A :class:`BenchResult` (possibly with no rows if every mesh failed).
@@ -146,7 +148,7 @@ def bench_meshes(
     methods = [check_method(name) for name in methods]
     options = options or MethodOptions()
     result = BenchResult()
-    start = time.perf_counter()
+    start = clock.now()
     with tqdm(meshes, desc="bench", unit="mesh", disable=not progress) as bar:
         say = report or (lambda line: bar.write(line, file=sys.stderr))
         for entry in bar:
@@ -160,6 +162,7 @@ def bench_meshes(
                     options,
                     Renderer(mesh, options.device, evaluation),
                     _MeshPostfix(bar, entry.name),
+                    clock=clock,
                 )
             except (KeyboardInterrupt, MemoryError):
                 raise
@@ -173,7 +176,7 @@ def bench_meshes(
             result.rows += [
                 {"mesh": entry.name, "path": str(entry.path), **row} for row in comparison.rows
             ]
-    result.seconds = time.perf_counter() - start
+    result.seconds = clock.now() - start
     return result
 
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from geoscaler import __version__
+from geoscaler.clock import WALL_CLOCK
 from geoscaler.errors import GeoscalerError
 from geoscaler.process import configure_process, exit_status_kept
 from geoscaler.protocol import PROTOCOL, PROTOCOL_EVALUATION, Evaluation
@@ -576,7 +576,7 @@ def main(
     """
     if argv is None:
         return exit_status_kept(lambda: _run(None, evaluation, optimize, None))
-    return _run(argv, evaluation, optimize, time.perf_counter())
+    return _run(argv, evaluation, optimize, WALL_CLOCK.now())
 
 
 def _run(

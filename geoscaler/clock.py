@@ -138,3 +138,12 @@ class Budget:
     def keeping(self, seconds: float) -> Budget:
         """This budget with ``seconds`` more kept back at its end."""
         return replace(self, reserve=self.reserve + seconds)
+
+
+WALL_CLOCK = WallClock()
+"""The machine's clock: what commands pass in, and what a caller that passes no clock gets."""
+
+
+def unlimited(clock: Clock = WALL_CLOCK) -> Budget:
+    """A budget without a limit, from now on ``clock``: every cost fits."""
+    return Budget(clock, clock.now())

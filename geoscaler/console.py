@@ -4,37 +4,21 @@ from __future__ import annotations
 
 import contextlib
 import math
-import os
 import signal
 import sys
 import threading
-import time
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
+from geoscaler.clock import WALL_CLOCK, Clock, WallClock
 from geoscaler.events import Controller, ProgressEvent
 from geoscaler.job import JobObserver
 
 
-def process_started_at() -> float:
-    """The ``time.perf_counter()`` of this process's start, so that a command's time budget
-    covers the interpreter's start and the imports too (Linux, from ``/proc``, to 10 ms;
-    elsewhere: now)."""
-    try:
-        ticks = os.sysconf("SC_CLK_TCK")
-        fields = Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()
-        started = int(fields[19]) / ticks  # field 22, starttime, in ticks since boot
-        uptime = float(Path("/proc/uptime").read_text().split()[0])
-        return time.perf_counter() - max(uptime - started, 0.0)
-    except (OSError, ValueError, IndexError, AttributeError):
-        return time.perf_counter()
-
-
-def command_started_at(called_at: float | None) -> float:
-    """The ``time.perf_counter()`` a command's time budget counts from: ``called_at`` (when
+def command_started_at(called_at: float | None, clock: WallClock = WALL_CLOCK) -> float:
+    """The instant a command's time budget counts from: ``called_at`` (when
     :func:`geoscaler.cli.main` was called from Python), else this process's start."""
-    return process_started_at() if called_at is None else called_at
+    return clock.process_start() if called_at is None else called_at
 
 
 class DownsampleProgress(JobObserver):
@@ -48,13 +32,15 @@ class DownsampleProgress(JobObserver):
     Args:
         enabled: False: draw nothing.
         learned: the job's method is learned (steps come before the scoring).
+        clock: where the time left is read.
     """
 
     FORMAT = "{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]"
 
-    def __init__(self, enabled: bool = True, learned: bool = True):
+    def __init__(self, enabled: bool = True, learned: bool = True, clock: Clock = WALL_CLOCK):
         from tqdm import tqdm
 
+        self.clock = clock
         self.bar = tqdm(
             total=1,
             desc="loading",
@@ -92,7 +78,7 @@ class DownsampleProgress(JobObserver):
     def method_started(self, name: str, scale: int, time_budget: float | None) -> None:
         """A learned method starts now; its budget, if any, ends ``time_budget`` s later."""
         if time_budget is not None:
-            self.deadline = time.perf_counter() + time_budget
+            self.deadline = self.clock.now() + time_budget
 
     def on_event(self, event: ProgressEvent) -> None:
         """Receives the method's :class:`ProgressEvent` reports."""
@@ -108,7 +94,7 @@ class DownsampleProgress(JobObserver):
         if self.phase == "caching":
             self._phase("steps", "optimising", event.total_steps)
             bar.unit = "step"
-            self.first_step = (time.perf_counter(), event.step)
+            self.first_step = (self.clock.now(), event.step)
         bar.n = event.step
         postfix = []
         if math.isfinite(event.loss):
@@ -128,10 +114,10 @@ class DownsampleProgress(JobObserver):
         estimates = []
         if self.first_step is not None and event.step > self.first_step[1]:
             began, first = self.first_step
-            rate = (time.perf_counter() - began) / (event.step - first)
+            rate = (self.clock.now() - began) / (event.step - first)
             estimates.append(rate * (event.total_steps - event.step))
         if self.deadline is not None:
-            estimates.append(max(self.deadline - time.perf_counter(), 0.0))
+            estimates.append(max(self.deadline - self.clock.now(), 0.0))
         return min(estimates) if estimates else None
 
     def close(self) -> None:

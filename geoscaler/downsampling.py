@@ -9,12 +9,12 @@ class's size).
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from geoscaler.arguments import check_method
+from geoscaler.clock import WALL_CLOCK, Clock
 from geoscaler.errors import GeoscalerError
 from geoscaler.events import Controller
 from geoscaler.io import (
@@ -64,8 +64,9 @@ class Job:
         force: replace existing outputs.
         report: the JSON report to write, or None.
         sizes: per material the base colour's output size ``(h, w)`` (None: untextured).
-        started_at: the ``time.perf_counter()`` its time budget counts from (the command's
+        started_at: the instant on ``clock`` its time budget counts from (the command's
             start: loading the mesh included).
+        clock: where the job reads the time.
         image_format: "png", "jpeg" or "webp" for every image written (None: as the input).
     """
 
@@ -79,8 +80,9 @@ class Job:
     report: Path | None = None
     output_files: list[Path] = field(default_factory=list)
     sizes: list[tuple[int, int] | None] = field(default_factory=list)
-    started_at: float = field(default_factory=time.perf_counter)
+    started_at: float = field(default_factory=WALL_CLOCK.now)
     image_format: str | None = None
+    clock: Clock = WALL_CLOCK
 
 
 def product_evaluation(evaluation: Evaluation) -> Evaluation:
@@ -116,12 +118,13 @@ def prepare(
     report: str | Path | None = None,
     started_at: float | None = None,
     image_format: str | None = None,
+    clock: Clock = WALL_CLOCK,
 ) -> Job:
     """Check everything that can be checked, load the mesh, and return the :class:`Job`.
 
     ``sizes``: a scale for every texture, or a rule per texture class. ``started_at``: the
-    ``time.perf_counter()`` the job's time budget counts from (default: now; the CLI passes
-    its process's start). ``image_format``: "png", "jpeg" or "webp" for every image written
+    instant on ``clock`` the job's time budget counts from (default: now; the CLI passes its
+    process's start). ``image_format``: "png", "jpeg" or "webp" for every image written
     (None: each in its input's format).
 
     Raises:
@@ -129,7 +132,7 @@ def prepare(
             that is an input file (even with ``force``) or exists without ``force``; an
             unreadable mesh; a scale larger than a texture.
     """
-    started_at = time.perf_counter() if started_at is None else started_at
+    started_at = clock.now() if started_at is None else started_at
     mesh_path = Path(mesh_path)
     plan = sizes if isinstance(sizes, SizePlan) else size_plan({"all": check_scale(sizes)}, {})
     method = check_method(method)
@@ -166,6 +169,7 @@ def prepare(
         base_sizes,
         started_at,
         image_format,
+        clock,
     )
 
 
@@ -219,6 +223,7 @@ def run_job(
         controller,
         job.started_at,
         EXPORT_RESERVE,
+        job.clock,
     )
     (observer or JobObserver()).stage("writing", 0, 1)
     shipped = done.result.details.get("shipped", job.method)

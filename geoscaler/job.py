@@ -16,7 +16,6 @@ A :class:`JobObserver` watches a job (the CLI's progress bars, the app's live st
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,6 +25,7 @@ import numpy as np
 
 from geoscaler.arguments import check_distances, check_method, check_rules
 from geoscaler.cameras import spread_order, view_set_cameras
+from geoscaler.clock import WALL_CLOCK, Clock
 from geoscaler.errors import GeoscalerError
 from geoscaler.events import Controller, ProgressEvent
 from geoscaler.filters import output_sizes
@@ -143,6 +143,7 @@ def compare_mesh(
     started_at: float | None = None,
     reserve: float = 0.0,
     rows_on: str = "protocol",
+    clock: Clock = WALL_CLOCK,
 ) -> Comparison:
     """Run ``methods`` at every scale and score them.
 
@@ -164,7 +165,7 @@ def compare_mesh(
             standing for each set (default: protocol 1 on ``options.device``).
         observer: watches the job.
         controller: pauses or stops the learned methods (their best state so far is kept).
-        started_at: the ``time.perf_counter()`` from which ``options.time_budget`` is the wall
+        started_at: the instant on ``clock`` from which ``options.time_budget`` is the wall
             clock of the whole job (``downsample``: the command's start); a learned method then
             gets what is left, and keeps ``reserve`` seconds and the time of the rows' scoring
             for after it. None (``compare``, ``bench``): each learned method's budget counts
@@ -174,6 +175,7 @@ def compare_mesh(
             views, after the methods); ``"validation"``: rows on the validation's Q views, the
             ones the shipped result was chosen on (a downsampling job's report, inside its
             budget).
+        clock: where the job and its methods read the time.
 
     Returns:
         A :class:`Comparison`; its rows are ordered by distance, scale, then ``methods``.
@@ -207,25 +209,26 @@ def compare_mesh(
         outputs: dict[str, MethodResult] = {}
         for name in filters:
             progress.step(f"{name} x{scale}")
-            outputs[name] = _run(mesh, rule, name, options, renderer, None, None, observer)
+            filter_context = RunContext(renderer, clock=clock)
+            outputs[name] = _run(mesh, rule, name, options, filter_context, None, observer)
         scorings_after = len(to_run) if rows_on == "validation" else 0
         baselines = {name: outputs[name].textures for name in filters}
-        validation = Validation(view_sets, sizes[scale], baselines, scorings_after)
+        validation = Validation(view_sets, sizes[scale], baselines, scorings_after, clock)
         for name in learned:
             progress.step(f"{name} x{scale}")
             budget = options.time_budget
             if started_at is not None:
-                budget = remaining_budget(budget, time.perf_counter() - started_at)
+                budget = remaining_budget(budget, clock.now() - started_at)
             context = RunContext(
-                renderer, validation, controller, observer.on_event, budget, reserve
+                renderer, validation, controller, observer.on_event, budget, reserve, clock
             )
             if started_at is not None:
                 renderer.reference_textures()  # made once, before a view is priced
                 if not learned_fits(validation, budget, reserve):
                     outputs[name] = not_run(name, outputs, budget)
                     continue
-            method_start = time.perf_counter()
-            result = _run(mesh, rule, name, options, renderer, context, budget, observer)
+            method_start = clock.now()
+            result = _run(mesh, rule, name, options, context, budget, observer)
             if started_at is not None and "first_step_seconds" in result.details:
                 first = method_start - started_at + result.details["first_step_seconds"]
                 result.details["first_step_after_start"] = round(first, 3)
@@ -297,9 +300,9 @@ def learned_fits(validation: Validation, budget: float | None, reserve: float) -
     the budget (the cat, the frypan) were not run."""
     if budget is None:
         return True
-    started = time.perf_counter()
+    started = validation.clock.now()
     validation.cache_next()
-    left = budget - (time.perf_counter() - started)
+    left = budget - (validation.clock.now() - started)
     owed = validation.seconds_needed(2, caching=True) + reserve
     return validation.view_cost + owed <= left
 
@@ -330,7 +333,7 @@ def _cache_for_rows(
         validation.cache_all()
     else:
         end = started_at + budget - reserve
-        while time.perf_counter() + 2 * validation.seconds_needed(0, True, least=least) < end:
+        while validation.clock.now() + 2 * validation.seconds_needed(0, True, least=least) < end:
             if not validation.cache_next():
                 break
     validation.freeze(least)
@@ -411,17 +414,17 @@ def _run(
     rule: SizeRule,
     name: str,
     options: MethodOptions,
-    renderer: Renderer,
-    context: RunContext | None,
+    context: RunContext,
     budget: float | None,
     observer: JobObserver,
 ) -> MethodResult:
-    """Run one method as the job does: a learned one with the job's ``context`` (renderer,
-    validation, ``budget`` seconds); every output with its alpha re-attached as it will ship."""
+    """Run one method as the job does, in ``context`` (a learned one's: the job's renderer,
+    validation and ``budget`` seconds); every output with its alpha re-attached as it will
+    ship."""
     observer.method_started(name, rule.label, budget if is_learned(name) else None)
-    context = context if is_learned(name) else RunContext(renderer)
     result = run_method(name, mesh, rule, options, context)
-    result.textures = ship_textures(result.textures, renderer.reference_maps(), mesh.materials)
+    references = context.renderer.reference_maps()
+    result.textures = ship_textures(result.textures, references, mesh.materials)
     return result
 
 
@@ -473,12 +476,13 @@ def downsample(
     controller: Controller | None = None,
     started_at: float | None = None,
     reserve: float = 0.0,
+    clock: Clock = WALL_CLOCK,
 ) -> Downsampled:
     """Run ``method`` on ``mesh`` at ``scale`` (a whole number or a :class:`SizeRule`) and
     score it, bicubic and Lanczos on Q.
 
-    ``started_at``, ``reserve``: as :func:`compare_mesh` (None: the budget counts from the
-    caching of Q).
+    ``started_at``, ``reserve``, ``clock``: as :func:`compare_mesh` (``started_at`` None: the
+    budget counts from the caching of Q).
     """
     methods = [method, *(name for name in REPORT_BASELINES if name != method)]
     (rule,) = check_rules([scale])
@@ -494,6 +498,7 @@ def downsample(
         started_at,
         reserve,
         rows_on="validation",
+        clock=clock,
     )
     result = comparison.outputs[method, rule.label]
     details = dict(result.details)

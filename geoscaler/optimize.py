@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import functools
 import math
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -36,6 +35,7 @@ import torch
 
 from geoscaler.adamw import AdamW
 from geoscaler.cameras import Camera, sample_training_cameras
+from geoscaler.clock import Budget
 from geoscaler.events import Controller, ProgressEvent
 from geoscaler.losses import PerceptualTerm, view_loss
 from geoscaler.majorize import Sloped, majorized_step
@@ -288,26 +288,25 @@ class _Caching:
         train: ViewCache,
         validation: Validation,
         config: OptimizeConfig,
-        start: float,
+        budget: Budget,
         emit: Callable[[ProgressEvent], None],
     ):
         self.train, self.validation, self.config = train, validation, config
-        self.start, self.emit = start, emit
+        self.budget, self.emit = budget, emit
         self.view_cost = ViewCost()
-        self.deadline = None
-        if config.time_budget is not None:
-            self.deadline = start + CACHING_SHARE * config.time_budget
+        share = None if budget.seconds is None else CACHING_SHARE * budget.seconds
+        self.window = Budget(budget.clock, budget.start, share)
 
     @property
     def pool(self) -> ViewSet:
         return self.train.views
 
     def _cache_pool_view(self) -> bool:
-        started = time.perf_counter()
+        started = self.budget.now()
         if not self.pool.cache_next():
             return False
         self.train.find_taps(len(self.pool) - 1)
-        self.view_cost.add(time.perf_counter() - started)
+        self.view_cost.add(self.budget.now() - started)
         return True
 
     def _cache_one(self) -> bool:
@@ -327,7 +326,7 @@ class _Caching:
                 return False
             if not self._cache_pool_view():
                 break
-            elapsed = time.perf_counter() - self.start
+            elapsed = self.budget.elapsed()
             self.emit(
                 ProgressEvent(
                     "caching", 0, self.config.steps, elapsed, done=len(self.pool), total=needed
@@ -336,8 +335,8 @@ class _Caching:
         return True
 
     def after_step(self) -> None:
-        """Cache :data:`CACHED_PER_STEP` views; past the caching deadline, :meth:`close`."""
-        if self.deadline is not None and time.perf_counter() > self.deadline:
+        """Cache :data:`CACHED_PER_STEP` views; past the caching window, :meth:`close`."""
+        if self.window.left() < 0:
             self.close()
             return
         for _ in range(CACHED_PER_STEP):
@@ -347,10 +346,10 @@ class _Caching:
             self.validation.freeze()
 
     def close(self) -> None:
-        """No more training views; cache the validation views left until the caching deadline
+        """No more training views; cache the validation views left within the caching window
         (all of them, without a budget), and validate on those from now on."""
         self.pool.cameras = self.pool.cameras[: len(self.pool)]
-        while self.deadline is None or time.perf_counter() < self.deadline:
+        while self.window.left() > 0:
             if not self.validation.cache_next():
                 break
         self.validation.freeze()
@@ -360,6 +359,257 @@ class _Caching:
         """``(cached, planned)`` views, training and validation together."""
         cached = len(self.pool) + self.validation.num_views
         return cached, len(self.pool.cameras) + self.validation.planned
+
+
+@dataclass
+class LoopState:
+    """What changes as the loop runs.
+
+    Attributes:
+        step: steps taken.
+        loss: the last step's loss (nan before the first).
+        stopped_by: why the loop ended (``"steps"``, ``"time budget"``, ``"stopped"``,
+            ``"plateau"``).
+        step_seconds: the last step's wall-clock seconds (0 before one is timed: a step from
+            cached views costs a fraction of caching them).
+        first_step_seconds: seconds from the budget's start to the end of the first step.
+        lr_scale: the learning rate's factor after backtracking.
+        backtracks: times the loop went back to its best candidate.
+        check_at: the step a backtrack asks to validate at (-1: none).
+        validated_step: the last step validated (-1: none).
+        history: one row per step.
+    """
+
+    step: int = 0
+    loss: float = math.nan
+    stopped_by: str = "steps"
+    step_seconds: float = 0.0
+    first_step_seconds: float = math.nan
+    lr_scale: float = 1.0
+    backtracks: int = 0
+    check_at: int = -1
+    validated_step: int = -1
+    history: list[dict] = field(default_factory=list)
+
+
+class TrainingLoop:
+    """The loop of :func:`optimize`: cache the views the first step needs, then step,
+    cache more views, validate when due and back-track, until the steps, the budget, a
+    plateau or the controller end it; finally validate what it has not and report the best.
+
+    Arguments as :func:`optimize`'s.
+    """
+
+    def __init__(
+        self,
+        renderer: Renderer,
+        model: Model,
+        config: OptimizeConfig,
+        validation: Validation,
+        budget: Budget,
+        on_event: Callable[[ProgressEvent], None] | None = None,
+        controller: Controller | None = None,
+        keeps_uvs: bool = True,
+        perceptual: PerceptualTerm | None = None,
+        pool: ViewCache | None = None,
+        start_scores: Scores | None = None,
+    ):
+        self.renderer, self.model, self.config = renderer, model, config
+        self.validation, self.budget = validation, budget
+        self.emit = on_event or (lambda event: None)
+        self.controller = controller or Controller()
+        self.keeps_uvs, self.perceptual, self.start_scores = keeps_uvs, perceptual, start_scores
+        self.train = pool
+        validating = [c for cache in validation.sets.values() for c in cache.views.cameras]
+        self.farthest = max(camera.distance for camera in (*pool.views.cameras, *validating))
+        self.best = _Best(validation)
+        self.state = LoopState()
+        self._reachable: list[torch.Tensor | None] | None = None
+        self.optimizer = AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+        self.generator = torch.Generator().manual_seed(config.seed)
+        self.schedule = config.schedule
+        self.loop_start = math.nan
+        plain_l2 = config.ssim_weight == 0 and perceptual is None and not config.loss_in_db
+        self.majorizes = (
+            isinstance(model, Sloped) and keeps_uvs and pool.with_taps and plain_l2
+        )
+
+    def run(self) -> OptimizeResult:
+        """Train, validate and return the best validated candidate."""
+        self.renderer.reference_textures()  # made once, before views are timed: not a view's cost
+        self.caching = _Caching(self.train, self.validation, self.config, self.budget, self.emit)
+        trainable = self.caching.until_trainable(self.fits)
+        self.start_state = _detached(self.model)
+        if not trainable:  # not even the first step's views could be cached in time
+            self.state.stopped_by = "time budget"
+        self.loop_start = self.budget.now()
+        while trainable and self.state.step < self.config.steps:
+            if not self._may_step():
+                break
+            self._step()
+            self.caching.after_step()
+            if self.validation.frozen and self._validate_when_due():
+                break
+        return self._finish()
+
+    # --------------------------------------------------------------------------- the budget
+
+    def seconds_needed(self) -> float:
+        """What must follow the loop, with :data:`FINISH_MARGIN`: the last validation, the
+        start's where it is still owed, and the views they need."""
+        owed = 1 + (not self.best.has_start and self.start_scores is None)
+        view_seconds = self.caching.view_cost.mean  # a validation view's cost, before one
+        return FINISH_MARGIN * self.validation.seconds_needed(owed, True, view_seconds)
+
+    def fits(self, seconds: float) -> bool:
+        """``seconds`` of work, then what must follow the loop, fit in the budget."""
+        return not self.budget.limited or self.budget.fits(seconds + self.seconds_needed())
+
+    def reachable(self) -> list[torch.Tensor | None]:
+        """Per material the texels a lookup can read, made after the first step (not before
+        it: ~1 s on a 4096^2 original)."""
+        if self._reachable is None:
+            sizes = self.validation.sizes
+            if not self.keeps_uvs:
+                self._reachable = [None] * len(sizes)
+            else:
+                masks = reachable_masks(self.renderer.mesh, sizes, self.farthest,
+                                        self.renderer.resolution)  # fmt: skip
+                self._reachable = [None if m is None else m.to(self.renderer.device) for m in masks]
+        return self._reachable
+
+    # ------------------------------------------------------------------------------ a step
+
+    def _may_step(self) -> bool:
+        """Whether the next step may run: not stopped, and within the budget (at the last
+        step's cost); pauses while the controller says so."""
+        self.controller.wait_while_paused()
+        if self.controller.stopped:
+            self.state.stopped_by = "stopped"
+            return False
+        if not self.fits(self.state.step_seconds):
+            self.state.stopped_by = "time budget"
+            return False
+        return True
+
+    def _step(self) -> None:
+        """One training step, timed and reported."""
+        state, config = self.state, self.config
+        step_start = self.budget.now()
+        views = torch.randperm(len(self.train), generator=self.generator)[: config.views_per_step]
+        if state.step < config.majorized_steps and self.majorizes:
+            state.loss = majorized_step(self.train, self.model, views.tolist())
+        else:
+            lr_factor = functools.partial(self._lr_factor, state.step, state.lr_scale)
+            state.loss = train_step(self.train, self.model, self.optimizer, views.tolist(),
+                                    config, lr_factor, self.perceptual)  # fmt: skip
+        state.step += 1
+        state.step_seconds = self.budget.now() - step_start
+        elapsed = self.budget.elapsed()
+        if state.step == 1:
+            state.first_step_seconds = elapsed
+            self.reachable()  # now, before the budget's next look at the clock
+        done, total = self.caching.views_done
+        self.emit(ProgressEvent("step", state.step, config.steps, elapsed, state.loss,
+                                best_psnr=self.best.psnr, done=done, total=total,
+                                candidate=self._candidate))  # fmt: skip
+        state.history.append({"step": state.step, "loss": state.loss, "elapsed": elapsed})
+
+    def _lr_factor(self, step: int, scale: float) -> float:
+        spent = self.schedule.time_spent(self.budget.now(), self.budget.start, self.loop_start)
+        return scale * self.schedule.factor(step, spent)
+
+    def _candidate(self) -> Candidate:
+        """The current state, on request (progress events carry it)."""
+        return _detached(self.model)
+
+    # ------------------------------------------------------------------------- validating
+
+    def _validate_when_due(self) -> bool:
+        """Validate the start once the views are frozen, then every ``validate_every`` steps,
+        at the last and where backtracking asks; back-track on a candidate that does not
+        improve. True where the loop should stop (a plateau)."""
+        state, config = self.state, self.config
+        if not self.best.has_start:
+            self._validate_start()
+            if config.backtrack is not None:  # is the step size hurting already?
+                state.check_at = state.step
+        due = state.step % config.validate_every == 0 or state.step in (config.steps,
+                                                                         state.check_at)
+        if not due:
+            return False
+        finished = finished_candidate(self.model, self.reachable())
+        scores = validate(self.validation, finished)
+        state.validated_step = state.step
+        improved = self._offer(scores, finished)
+        state.history[-1]["validation_psnr_fg"] = scores["Q"]
+        if not improved and config.backtrack is not None and state.step < config.steps:
+            self._backtrack()
+        if not improved and config.patience is not None and self.best.stale >= config.patience:
+            state.stopped_by = "plateau"
+            return True
+        return False
+
+    def _backtrack(self) -> None:
+        """Back to the best candidate, with a lower learning rate, validated again sooner."""
+        state, config = self.state, self.config
+        self.model.restore(self.best.textures)
+        self.optimizer = AdamW(self.model.parameters(), weight_decay=config.weight_decay)
+        state.lr_scale *= config.backtrack
+        state.backtracks += 1
+        state.check_at = state.step + max(round(config.validate_every * config.backtrack), 1)
+        state.history[-1]["backtrack"] = state.lr_scale
+
+    def _offer(self, scores: dict[str, float], finished: Candidate) -> bool:
+        state = self.state
+        improved = self.best.offer(scores, finished, state.step)
+        self.emit(ProgressEvent("validation", state.step, self.config.steps,
+                                self.budget.elapsed(), state.loss, scores["Q"], self.best.psnr,
+                                scores=scores, candidate=self._candidate))  # fmt: skip
+        return improved
+
+    def _validate_start(self) -> None:
+        self.emit(ProgressEvent("baselines", self.state.step, self.config.steps,
+                                self.budget.elapsed(),
+                                baselines=self.validation.baseline_scores()))  # fmt: skip
+        textures, uvs = self.start_state
+        start_candidate = finish(textures, self.reachable()), uvs
+        scores = self.start_scores
+        if scores is None:
+            scores = validate(self.validation, start_candidate)
+        self.best.offer(scores, start_candidate, 0)
+
+    def _finish(self) -> OptimizeResult:
+        """Validate what is still owed (the start; a last step between validations, which may
+        be better) and report."""
+        state = self.state
+        self.caching.close()
+        if not self.best.has_start:
+            self._validate_start()
+        if state.validated_step != state.step and state.step > 0:
+            finished = finished_candidate(self.model, self.reachable())
+            self._offer(validate(self.validation, finished), finished)
+        seconds = self.budget.elapsed()
+        self.emit(ProgressEvent("done", state.step, self.config.steps, seconds, state.loss,
+                                None, self.best.psnr))  # fmt: skip
+        best = self.best
+        return OptimizeResult(
+            textures=best.textures,
+            uvs=best.uvs,
+            steps=state.step,
+            best_step=best.step,
+            scores=best.scores,
+            clears_floor=best.clears,
+            shortfall=best.rank[0],
+            baselines=self.validation.baseline_scores(),
+            stopped_by=state.stopped_by,
+            seconds=seconds,
+            first_step_seconds=state.first_step_seconds,
+            training_views=len(self.train),
+            validation_views=dict(self.validation.counts or {}),
+            backtracks=state.backtracks,
+            history=state.history,
+        )
 
 
 def optimize(
@@ -372,8 +622,7 @@ def optimize(
     keeps_uvs: bool = True,
     perceptual: PerceptualTerm | None = None,
     training_cameras: Sequence[Camera] | None = None,
-    started_at: float | None = None,
-    reserve: float = 0.0,
+    budget: Budget | None = None,
     pool: ViewCache | None = None,
     start_scores: Scores | None = None,
 ) -> OptimizeResult:
@@ -394,9 +643,9 @@ def optimize(
         training_cameras: the views to train on (default: ``config.pool_views`` cameras drawn
             from ``config.distances``). Methods never train on the validation cameras; the
             texel-ceiling benchmark does, to bound what any texture could reach there.
-        started_at: the ``time.perf_counter()`` the time budget counts from (default: now), so
-            that the job's and the method's set-up count too.
-        reserve: seconds the caller needs after the loop returns (under a budget).
+        budget: the time the loop may take, counted from its start (so that the job's and the
+            method's set-up count too), less its reserve for what the caller does after the
+            loop returns (default: ``config.time_budget`` from now, on the wall clock).
         pool: the training pool to train on and grow to its cameras (default: a new one over
             ``training_cameras``): an earlier loop's keeps its cached views and taps.
         start_scores: the validation scores of the model's start, when an earlier loop on the
@@ -407,185 +656,13 @@ def optimize(
         those that clear the floor on every set, or the one that falls least below it; and the
         run's history.
     """
-    start = time.perf_counter() if started_at is None else started_at
-    controller = controller or Controller()
-    emit = on_event or (lambda event: None)
+    budget = budget or Budget.from_now(validation.clock, config.time_budget)
     if pool is None:
         cameras = training_cameras or sample_training_cameras(
             config.pool_views, config.seed, config.distances
         )
         soft = config.soft if config.training_renderer == "soft" else None
         pool = training_views(renderer, cameras, validation.sizes, keeps_uvs, soft)
-    train, cameras = pool, pool.views.cameras
-    validating = [camera for cache in validation.sets.values() for camera in cache.views.cameras]
-    farthest = max(camera.distance for camera in (*cameras, *validating))
-
-    @functools.cache
-    def reachable() -> list[torch.Tensor | None]:
-        """Per material the texels a lookup can read, made after the first step (not before
-        it: ~1 s on a 4096^2 original)."""
-        if not keeps_uvs:
-            return [None] * len(validation.sizes)
-        masks = reachable_masks(renderer.mesh, validation.sizes, farthest, renderer.resolution)
-        return [None if m is None else m.to(renderer.device) for m in masks]
-
-    best = _Best(validation)
-    deadline = None if config.time_budget is None else start + config.time_budget
-    renderer.reference_textures()  # made once, before views are timed: not a view's cost
-    caching = _Caching(train, validation, config, start, emit)
-
-    def seconds_needed() -> float:
-        owed = 1 + (not best.has_start and start_scores is None)  # the last, and the start
-        view_seconds = caching.view_cost.mean  # a validation view's cost, before one is cached
-        return FINISH_MARGIN * validation.seconds_needed(owed, True, view_seconds) + reserve
-
-    def fits(seconds: float) -> bool:
-        """``seconds`` of work, then what must follow the loop, fit in the budget."""
-        return deadline is None or time.perf_counter() + seconds + seconds_needed() <= deadline
-
-    trainable = caching.until_trainable(fits)
-    # Until a step is timed, 0: a step from cached views costs a fraction of caching them.
-    step_seconds = 0.0
-    optimizer = AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    generator = torch.Generator().manual_seed(config.seed)
-    start_state = _detached(model)
-
-    candidate = functools.partial(_detached, model)  # the current state, on request
-    plain_l2 = config.ssim_weight == 0 and perceptual is None and not config.loss_in_db
-    majorizes = isinstance(model, Sloped) and keeps_uvs and train.with_taps and plain_l2
-
-    def offer(scores: dict[str, float], finished: Candidate, step: int) -> bool:
-        improved = best.offer(scores, finished, step)
-        event = ProgressEvent(
-            "validation",
-            step,
-            config.steps,
-            time.perf_counter() - start,
-            loss_value,
-            scores["Q"],
-            best.psnr,
-            scores=scores,
-            candidate=candidate,
-        )
-        emit(event)
-        return improved
-
-    def validate_start() -> None:
-        emit(
-            ProgressEvent(
-                "baselines",
-                step,
-                config.steps,
-                time.perf_counter() - start,
-                baselines=validation.baseline_scores(),
-            )
-        )
-        textures, uvs = start_state
-        start_candidate = finish(textures, reachable()), uvs
-        scores = validate(validation, start_candidate) if start_scores is None else start_scores
-        best.offer(scores, start_candidate, 0)
-
-    history: list[dict] = []
-    step, loss_value, stopped_by = 0, math.nan, "steps"
-    if not trainable:  # not even the first step's views could be cached in time
-        stopped_by = "time budget"
-    lr_scale, backtracks, check_at = 1.0, 0, -1  # check_at: a validation backtracking asks for
-    validated_step, first_step = -1, math.nan
-    loop_start, schedule = time.perf_counter(), config.schedule
-    while trainable and step < config.steps:
-        controller.wait_while_paused()
-        if controller.stopped:
-            stopped_by = "stopped"
-            break
-        step_start = time.perf_counter()
-        if not fits(step_seconds):
-            stopped_by = "time budget"
-            break
-        views = torch.randperm(len(train), generator=generator)[: config.views_per_step]
-        if step < config.majorized_steps and majorizes:
-            loss_value = majorized_step(train, model, views.tolist())
-        else:
-            loss_value = train_step(
-                train,
-                model,
-                optimizer,
-                views.tolist(),
-                config,
-                lambda at=step, scale=lr_scale: (
-                    scale
-                    * schedule.factor(
-                        at, schedule.time_spent(time.perf_counter(), start, loop_start)
-                    )
-                ),
-                perceptual,
-            )
-        step += 1
-        step_seconds = time.perf_counter() - step_start
-        elapsed = time.perf_counter() - start
-        if step == 1:
-            first_step = elapsed
-            reachable()  # now, before the budget's next look at the clock, not in a validation
-        done, total = caching.views_done
-        emit(
-            ProgressEvent(
-                "step",
-                step,
-                config.steps,
-                elapsed,
-                loss_value,
-                best_psnr=best.psnr,
-                done=done,
-                total=total,
-                candidate=candidate,
-            )
-        )
-        history.append({"step": step, "loss": loss_value, "elapsed": elapsed})
-        caching.after_step()
-        if not validation.frozen:
-            continue
-        if not best.has_start:
-            validate_start()
-            if config.backtrack is not None:  # is the step size hurting already?
-                check_at = step
-        if step % config.validate_every == 0 or step == config.steps or step == check_at:
-            finished = finished_candidate(model, reachable())
-            scores = validate(validation, finished)
-            validated_step = step
-            improved = offer(scores, finished, step)
-            history[-1]["validation_psnr_fg"] = scores["Q"]
-            if not improved and config.backtrack is not None and step < config.steps:
-                model.restore(best.textures)
-                optimizer = AdamW(model.parameters(), weight_decay=config.weight_decay)
-                lr_scale *= config.backtrack
-                backtracks += 1
-                check_at = step + max(round(config.validate_every * config.backtrack), 1)
-                history[-1]["backtrack"] = lr_scale
-            if not improved and config.patience is not None and best.stale >= config.patience:
-                stopped_by = "plateau"
-                break
-
-    caching.close()
-    if not best.has_start:
-        validate_start()
-    if validated_step != step and step > 0:  # stopped between validations: it may be better
-        finished = finished_candidate(model, reachable())
-        offer(validate(validation, finished), finished, step)
-    seconds = time.perf_counter() - start
-    emit(ProgressEvent("done", step, config.steps, seconds, loss_value, None, best.psnr))
-    return OptimizeResult(
-        best.textures,
-        best.uvs,
-        step,
-        best.step,
-        best.scores,
-        best.clears,
-        best.rank[0],
-        validation.baseline_scores(),
-        stopped_by,
-        seconds,
-        first_step,
-        len(train),
-        dict(validation.counts or {}),
-        backtracks,
-        history,
-    )
+    loop = TrainingLoop(renderer, model, config, validation, budget, on_event, controller,
+                        keeps_uvs, perceptual, pool, start_scores)  # fmt: skip
+    return loop.run()

@@ -29,13 +29,13 @@ packing, never assumed):
 from __future__ import annotations
 
 import math
-import time
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 import xatlas
 
+from geoscaler.clock import WALL_CLOCK, Budget, Clock
 from geoscaler.errors import GeoscalerError
 
 MIN_BOX_TEXELS = 2.0
@@ -196,9 +196,10 @@ def _pack_once(
     return new
 
 
-def _retire(atlas: xatlas.Atlas) -> None:
-    """Keep a used atlas alive for a while; destroy those retired long or many packings ago."""
-    now = time.monotonic()
+def _retire(atlas: xatlas.Atlas, clock: Clock = WALL_CLOCK) -> None:
+    """Keep a used atlas alive for a while; destroy those retired long (on ``clock``) or many
+    packings ago."""
+    now = clock.now()
     while _retired and (len(_retired) >= RETIRED_ATLASES or now - _retired[0][0] > RETIRED_SECONDS):
         _retired.popleft()
     _retired.append((now, atlas))
@@ -299,21 +300,21 @@ def pack(
     size: int,
     padding: int,
     rotate: bool,
-    deadline: float | None = None,
+    budget: Budget | None = None,
     grid: float | None = None,
 ) -> Packed:
     """The densest packing of ``charts``, each scaled by ``scales`` ``(C,)``, into one
     ``size x size`` atlas with ``padding`` texels between charts; charts turn by multiples of
     90 degrees or transpose only where ``rotate``. Deterministic: the same input gives the
-    same output, unless the search is stopped by ``deadline`` (``time.perf_counter()``; None:
-    never): past it no further density is tried, and the densest found so far is returned.
+    same output, unless the search is stopped by ``budget`` (None: never): past its end no
+    further density is tried, and the densest found so far is returned.
     With a ``grid`` (the original's texels per output texel), each chart's scale at the
     density tried is rounded down to that grid times a power of two (:func:`aligned_scales`):
     the packed scales are ``sqrt(|det linear|)``, not ``scales`` times the density.
 
     Raises:
         PackingError: not even a sparse packing holds the charts at their planned scales, or
-            none was found by ``deadline``.
+            none was found within ``budget``.
     """
     if 2 * padding >= size:
         raise PackingError(f"a padding of {padding} texels leaves no room in {size}x{size}")
@@ -327,7 +328,7 @@ def pack(
     boxes = folded_charts(charts)
 
     def late() -> bool:
-        return deadline is not None and time.perf_counter() > deadline
+        return budget is not None and budget.expired()
 
     for _ in range(SEARCH_STEPS):
         if late():

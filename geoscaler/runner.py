@@ -5,7 +5,6 @@ run it."""
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 from geoscaler.arguments import method_options
@@ -31,13 +30,14 @@ def downsample_and_report(
     """
     controller = Controller()
     renderer = Renderer(job.mesh, job.options.device, product_evaluation(evaluation))
-    bar = DownsampleProgress(progress, is_learned(job.method))
+    bar = DownsampleProgress(progress, is_learned(job.method), job.clock)
     try:
         with stop_on_interrupt(controller, bar.write):
             done, written = run_job(job, renderer, bar, controller)
             bar.close()
             try:
-                document = report_document(job, done, time.perf_counter() - job.started_at, written)
+                seconds = job.clock.now() - job.started_at
+                document = report_document(job, done, seconds, written)
                 if job.report is not None:
                     text = dumps(document) + "\n"
                     write_atomically(job.report, lambda tmp: tmp.write_text(text))
@@ -87,8 +87,8 @@ def demo(
     with ``direct`` and ``--uv`` :data:`DEMO_UV`. Writes ``geoscaler_pebble_x4.glb``, its report
     ``geoscaler_pebble_x4.json`` and the picture ``demo_comparison.png`` (original | bicubic |
     direct on three views) into ``out_dir``, replacing earlier demo outputs. ``time_budget``
-    of ``direct``: :data:`DEMO_TIME_BUDGET` by default, counted from ``started_at`` (a
-    ``time.perf_counter()``; None: now). Returns the report.
+    of ``direct``: :data:`DEMO_TIME_BUDGET` by default, counted from ``started_at`` (an
+    instant on the wall clock; None: now). Returns the report.
     """
     out_dir = prepare_folder(out_dir)
     mesh_path = out_dir / DEMO_MESH_NAME

@@ -28,7 +28,7 @@ class Schedule:
     def time_spent(self, now: float, start: float, loop_start: float) -> float:
         """Fraction of the optimisation's share of the budget used at ``now``: the share runs
         from the first step (``loop_start``) to the budget's end, counted from ``start`` (all
-        ``time.perf_counter()`` seconds; 0 without a budget)."""
+        instants on one clock, in seconds; 0 without a budget)."""
         if self.time_budget is None:
             return 0.0
         span = start + self.time_budget - loop_start

@@ -3,9 +3,7 @@ the guards, and the bake into the new layout."""
 
 from __future__ import annotations
 
-import time
 from dataclasses import replace
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -27,6 +25,7 @@ from geoscaler.atlas import (
 )
 from geoscaler.bake import ChartMaps, bake, decode, decoding, encode
 from geoscaler.cameras import validation_cameras
+from geoscaler.clock import Budget, ManualClock
 from geoscaler.encoded import EncodedMipTexture
 from geoscaler.filters import resize_float
 from geoscaler.mesh import Material, TexturedMesh, compute_vertex_normals
@@ -208,15 +207,16 @@ def test_padding_violations_count_charts_closer_than_the_padding():
 def test_used_atlases_outlive_their_packing_a_bounded_while(monkeypatch):
     # xatlas may hang destroying an atlas whose worker thread is still going back to sleep
     monkeypatch.setattr(packing, "_retired", type(packing._retired)())
-    clock = iter([0.0] * 20 + [0.5, 1.4])
-    monkeypatch.setattr(packing.time, "monotonic", lambda: next(clock))
+    clock = ManualClock()
     atlases = [object() for _ in range(22)]
     for atlas in atlases[:20]:
-        packing._retire(atlas)
+        packing._retire(atlas, clock)
     assert [a for _, a in packing._retired] == atlases[12:20]  # the last 8 packings' own
-    packing._retire(atlases[20])  # 0.5 s later: all kept within the count
+    clock.set(0.5)
+    packing._retire(atlases[20], clock)  # 0.5 s later: all kept within the count
     assert len(packing._retired) == packing.RETIRED_ATLASES
-    packing._retire(atlases[21])  # at 1.4 s: those idle for over a second are gone
+    clock.set(1.4)
+    packing._retire(atlases[21], clock)  # at 1.4 s: those idle for over a second are gone
     assert [a for _, a in packing._retired] == [atlases[20], atlases[21]]
 
 
@@ -257,6 +257,17 @@ def test_densities_above_the_bisections_answer_are_tried(monkeypatch):
     assert 0.55 * every_texel <= packed.texels_per_unit < 0.6 * every_texel
 
 
+class TickingClock:
+    """A clock that moves one second at every look, from 1."""
+
+    def __init__(self) -> None:
+        self.instant = 0.0
+
+    def now(self) -> float:
+        self.instant += 1.0
+        return self.instant
+
+
 def test_the_packing_search_stops_at_its_deadline(monkeypatch):
     # past the deadline no density is tried: the densest found so far packs; none: refused
     uvs = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float64)
@@ -269,24 +280,30 @@ def test_the_packing_search_stops_at_its_deadline(monkeypatch):
         return (found if tpu < 16.0 else None), boxes  # half the all-texels density, 32
 
     monkeypatch.setattr(packing, "_place", place)
-    clock = iter(range(1, 100))  # one second a look at the clock
-    monkeypatch.setattr(packing.time, "perf_counter", lambda: next(clock))
-    packed = pack(charts, np.ones(1), 32, 1, rotate=False, deadline=3.5)
+    budget = Budget(TickingClock(), 0.0, 3.5)  # one second a look at the clock
+    packed = pack(charts, np.ones(1), 32, 1, rotate=False, budget=budget)
     assert tried == pytest.approx([8.0, 16.0, 8.0 * 2**0.5])  # three looks before 3.5 s
     assert packed.texels_per_unit == pytest.approx(8.0 * 2**0.5)
     tried.clear()
     with pytest.raises(PackingError, match="time budget"):
-        pack(charts, np.ones(1), 32, 1, rotate=False, deadline=0.5)
+        pack(charts, np.ones(1), 32, 1, rotate=False, budget=Budget(TickingClock(), 0.0, 0.5))
     assert tried == []
 
 
 def test_the_cut_is_not_planned_where_it_would_end_past_the_deadline(monkeypatch):
     ribbon = ribbon_mesh(quads=16)  # cut where there is time (above)
     every_face = [torch.arange(len(ribbon.faces))]
-    start = time.perf_counter()
-    clock = iter([start, start + 600.0, start + 600.0])  # the whole plan takes 600 s
-    monkeypatch.setattr(atlas_module, "time", SimpleNamespace(perf_counter=lambda: next(clock)))
-    atlas = repack(ribbon, [(SIZE, SIZE)], every_face, 256, deadline=start + 1000.0)
+    clock = ManualClock()
+    plan_charts = atlas_module.plan_charts
+
+    def slow_plan(*args, **kwargs):  # the whole plan takes 600 s
+        planned = plan_charts(*args, **kwargs)
+        clock.advance(600.0)
+        return planned
+
+    monkeypatch.setattr(atlas_module, "plan_charts", slow_plan)
+    budget = Budget(clock, 0.0, 1000.0)
+    atlas = repack(ribbon, [(SIZE, SIZE)], every_face, 256, budget=budget)
     assert atlas.facts["charts_cut"] == 1 and not atlas.facts["cut"]
     assert atlas.facts["cut_skipped"] == "the time budget left no time to plan the cut"
     assert "k_cut" not in atlas.facts and atlas.facts["k"] == atlas.facts["k_whole"]

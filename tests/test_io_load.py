@@ -50,7 +50,7 @@ def test_dev_mesh_loads_with_consistent_arrays(dev_mesh: TexturedMesh):
     assert mesh.face_material.max() < len(mesh.materials)
     np.testing.assert_allclose(np.linalg.norm(mesh.normals, axis=1), 1, atol=1e-5)
     # Vertex rows are distinct (position, UV, normal, attributes); points distinct positions.
-    rows = np.c_[mesh.positions, mesh.uvs, mesh.normals, *mesh.attributes.values()]
+    rows = np.concatenate([mesh.positions, mesh.uvs, mesh.normals, *mesh.attributes.values()], 1)
     assert len(np.unique(rows, axis=0)) == count
     assert len(np.unique(mesh.positions, axis=0)) == mesh.num_points
     np.testing.assert_array_equal(mesh.points()[mesh.vertex_to_point], mesh.positions)

@@ -10,6 +10,7 @@ import torch
 from mesh_support import three_material_demo
 
 from geoscaler.cameras import validation_cameras
+from geoscaler.clock import Budget, ManualClock
 from geoscaler.events import Controller
 from geoscaler.filters import lanczos, output_sizes, reference_textures
 from geoscaler.losses import rendering_loss, view_loss
@@ -345,7 +346,7 @@ def test_a_spent_budget_validates_on_what_is_cached_and_ships_the_start(scene):
         lanczos_model(mesh),
         small_config(time_budget=1.0),
         validation,
-        started_at=-1e9,  # the budget ran out long ago
+        budget=Budget(ManualClock(), -1e9, 1.0),  # the budget ran out long ago
     )
     assert result.steps == 0 and result.stopped_by == "time budget" and result.best_step == 0
     assert result.training_views == 0  # no view cached for a step that cannot be taken

@@ -229,13 +229,22 @@ def test_a_validated_candidates_q_row_reuses_its_renders_and_equals_a_fresh_scor
         validation.score(other, None, ["Q"])
 
 
-def test_each_validation_measures_the_unit_costs_again(small, monkeypatch):
+class TickingClock:
+    """A clock that moves one second at every look."""
+
+    def __init__(self) -> None:
+        self.instant = 0.0
+
+    def now(self) -> float:
+        self.instant += 1.0
+        return self.instant
+
+
+def test_each_validation_measures_the_unit_costs_again(small):
     mesh, _ = small
-    validation = _validation(small)
+    validation = _validation(small, clock=TickingClock())
     validation.freeze()
     validation._render_seconds = validation._metric_seconds = 100.0  # a slow first probe
-    ticks = iter(range(10_000))
-    monkeypatch.setattr("geoscaler.validation.time.perf_counter", lambda: float(next(ticks)))
     validation.psnr([texture_to_linear(lanczos(t, 4)) for t in reference_textures(mesh)], None)
     # a clock that ticks once a call: every render and every Q metric took one "second"
     assert (validation._render_seconds, validation._metric_seconds) == (1.0, 1.0)

@@ -21,11 +21,11 @@ import contextlib
 import os
 import shutil
 import sys
-import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+from geoscaler.clock import WALL_CLOCK
 from geoscaler.errors import GeoscalerError
 from geoscaler.io import check_outputs, prepare_folder
 
@@ -131,11 +131,11 @@ def command(args: Any, settings: dict[str, Any]) -> int:
             f"batch: {len(assets)} assets in {in_dir}: {len(todo)} to run, {len(results)} "
             f"finished before (skipped); engine {args.engine}, {workers}"
         )
-        start = time.perf_counter()
+        start = WALL_CLOCK.now()
         try:
             stopped = _run(todo, settings, key, args, results)
         finally:
-            wall = time.perf_counter() - start
+            wall = WALL_CLOCK.now() - start
             for asset in assets:
                 results.setdefault(asset.name, AssetResult(asset.name, NOT_RUN))
             rows = [summary_row(a, results[a.name], out_dir) for a in assets]

@@ -7,11 +7,11 @@ import shutil
 import signal
 import socket
 import tempfile
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from geoscaler.clock import WALL_CLOCK
 from geoscaler.downsampling import prepare
 from geoscaler.errors import GeoscalerError, WriteError
 from geoscaler.io import check_outputs
@@ -65,7 +65,7 @@ def run_asset(task: AssetTask) -> AssetResult:
     output and renamed into place when all are complete, the report last; the staging folder
     is removed whatever happens. A bad asset returns a failed result with its one-line error.
     """
-    start = time.perf_counter()
+    start = WALL_CLOCK.now()
     configure_process()  # a Ray worker process did not start from the command line
     if task.threads:
         import torch
@@ -91,7 +91,7 @@ def run_asset(task: AssetTask) -> AssetResult:
             "settings": task.key,
             "inputs": [os.path.relpath(p, asset.path.parent) for p in inputs],
             "outputs": [os.path.relpath(p, asset.output.parent) for p in finals],
-            "seconds": round(time.perf_counter() - start, 3),
+            "seconds": round(WALL_CLOCK.now() - start, 3),
             "host": socket.gethostname(),
         }
         staged_report = staging / asset.report.name
@@ -113,7 +113,7 @@ def run_asset(task: AssetTask) -> AssetResult:
     finally:
         if staging is not None:
             shutil.rmtree(staging, ignore_errors=True)
-        result.seconds = time.perf_counter() - start
+        result.seconds = WALL_CLOCK.now() - start
     return result
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from geoscaler.clock import Budget
 from geoscaler.losses import PerceptualTerm
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext, output_sizes_for
@@ -56,7 +57,7 @@ def fit(
         model: the candidate's parameters.
         config: the loop's settings.
         context: validation views, controller and progress callback of the job.
-        started: the ``time.perf_counter()`` of the method's start (its set-up counts).
+        started: the instant of the method's start on ``context.clock`` (its set-up counts).
         keeps_uvs: the model never moves the UVs (texture taps can be cached).
         perceptual: an extra loss term.
         details: the method's own facts for the report, listed before the loop's.
@@ -66,7 +67,7 @@ def fit(
     validation = context.validation
     if validation is None:
         sizes = output_sizes_for(mesh, rule, renderer)
-        validation = Validation(validation_view_sets(renderer), sizes)
+        validation = Validation(validation_view_sets(renderer), sizes, clock=context.clock)
     result = optimize(
         renderer,
         model,
@@ -76,8 +77,7 @@ def fit(
         controller=context.controller,
         keeps_uvs=keeps_uvs,
         perceptual=perceptual,
-        started_at=started,
-        reserve=context.reserve,
+        budget=Budget(context.clock, started, config.time_budget, context.reserve),
         pool=pool,
         start_scores=start_scores,
     )

@@ -19,7 +19,6 @@ Presets:
 
 from __future__ import annotations
 
-import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -233,7 +232,7 @@ def geoscaler_network(
     ``options.settings``: ``"variant"`` (base, gcm, uvw, full), ``"preset"`` (cpu, paper),
     ``"vgg19"`` (path of VGG-19 weights for the perceptual term), ``"optimize"`` overrides.
     """
-    started = time.perf_counter()  # the time budget covers building the network too
+    started = context.clock.now()  # the time budget covers building the network too
     scale = network_scale(rule)
     variant = check_variant(options.settings.get("variant") or DEFAULT_VARIANT)
     preset_name = check_preset(options.settings.get("preset") or DEFAULT_PRESET)

@@ -14,7 +14,6 @@ and each registers itself here.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -22,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from geoscaler.atlas import Atlas
+from geoscaler.clock import WALL_CLOCK, Clock
 from geoscaler.errors import GeoscalerError
 from geoscaler.events import Controller, ProgressEvent
 from geoscaler.filters import output_sizes, reference_textures
@@ -67,6 +67,7 @@ class RunContext:
         time_budget: seconds the method may still spend: the job's budget less what the job
             spent before it (None: no limit).
         reserve: seconds of ``time_budget`` the job needs after the method (its export).
+        clock: where the method reads the time (its budget, its costs).
     """
 
     renderer: Renderer | None = None
@@ -75,6 +76,7 @@ class RunContext:
     on_event: Callable[[ProgressEvent], None] | None = None
     time_budget: float | None = None
     reserve: float = 0.0
+    clock: Clock = WALL_CLOCK
 
 
 @dataclass
@@ -210,7 +212,7 @@ def run_method(
     if method.settings:
         options = replace(options, settings={**options.settings, **method.settings})
     context = context or RunContext(time_budget=options.time_budget)
-    start = time.perf_counter()
+    start = context.clock.now()
     result = method.run(mesh, as_rule(scale), options, context)
-    result.seconds = time.perf_counter() - start
+    result.seconds = context.clock.now() - start
     return result

@@ -14,7 +14,6 @@ the two layouts on that shared validation (:func:`raced`).
 
 from __future__ import annotations
 
-import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -25,6 +24,7 @@ import torch
 from geoscaler.atlas import Atlas, repack
 from geoscaler.bake import ChartMaps, bake
 from geoscaler.cameras import Camera, sample_training_cameras
+from geoscaler.clock import Budget, Clock, unlimited
 from geoscaler.errors import GeoscalerError
 from geoscaler.events import ProgressEvent
 from geoscaler.mesh import TexturedMesh
@@ -62,7 +62,7 @@ class LayoutValidation(Validation):
 
     def __init__(self, base: Validation, renderer: Renderer):
         views = {name: cache.views for name, cache in base.sets.items()}
-        super().__init__(views, base.sizes, {}, base.scorings_after)
+        super().__init__(views, base.sizes, {}, base.scorings_after, base.clock)
         self.sets = {n: ViewCache(v, base.sizes, True, renderer) for n, v in views.items()}
         self.base = base
         if base.frozen:
@@ -109,11 +109,11 @@ def plan_layout(
     rule: SizeRule,
     renderer: Renderer,
     config: Any,
-    deadline: float | None = None,
+    budget: Budget | None = None,
     align: bool = True,
 ) -> Atlas:
-    """The new layout for ``rule``'s sizes by ``deadline`` (``time.perf_counter()``,
-    :func:`~geoscaler.atlas.repack`; None: no limit), its chart scales from the faces every
+    """The new layout for ``rule``'s sizes within ``budget`` (:func:`~geoscaler.atlas.repack`;
+    None: no limit), its chart scales from the faces every
     training camera sees, one sample per pixel; ``align``: False never aligns charts.
 
     Every camera of the training pool, not a few: on 8 of its 48 the mug's charts that those
@@ -127,7 +127,7 @@ def plan_layout(
         for s, r in zip(sizes, references, strict=True)
     ]
     tri_ids = [renderer.rasterize(camera, renderer.image_size).tri_ids for camera in cameras]
-    return repack(mesh, sizes, tri_ids, renderer.resolution, detail, deadline, align)
+    return repack(mesh, sizes, tri_ids, renderer.resolution, detail, budget, align)
 
 
 def baked_maps(
@@ -237,10 +237,11 @@ def repacked_direct(
     sizes = output_sizes_for(mesh, rule, renderer)
     validation = context.validation
     if validation is None:
-        validation = Validation(validation_view_sets(renderer), sizes)
+        validation = Validation(validation_view_sets(renderer), sizes, clock=context.clock)
     facts: dict[str, Any] = {"uv": mode}
     end = _method_end(config, context, started)
-    atlases = _timely_layouts(mesh, rule, renderer, config, validation, started, end, facts)
+    atlases = _timely_layouts(mesh, rule, renderer, config, validation, started, end, facts,
+                              context.clock)  # fmt: skip
     own = Layout(renderer.relaid(mesh.uvs, memo), validation)
     new = {
         name: _new_layout(mesh, atlas, renderer, validation, sizes, memo)
@@ -315,7 +316,7 @@ def raced(
     best_step = best.details["best_step"]
     steps_left = config.steps - best.details["steps"]
     finishing = FINISH_MARGIN * layout.validation.seconds_needed(2, False)
-    no_time = end is not None and time.perf_counter() + finishing >= end
+    no_time = end is not None and context.clock.now() + finishing >= end
     if _stopped(context) or steps_left < 1 or no_time:
         best.details = {**facts, **best.details, "steps": race.steps}
         best.details["first_step_seconds"] = first_step
@@ -355,6 +356,7 @@ def _timely_layouts(
     started: float,
     end: float | None,
     facts: dict,
+    clock: Clock,
 ) -> list[Atlas]:
     """The new layouts (:data:`NEW_LAYOUTS`), planned and baked by :data:`PREPARING_SHARE` of
     the time from ``started`` to ``end`` (None: no budget): the planned one, and where that
@@ -374,14 +376,15 @@ def _timely_layouts(
     atlases: list[Atlas] = []
     for align in (True, False):
         deadline = None if planned_by is None else planned_by - len(atlases) * baking
-        if deadline is not None and time.perf_counter() >= deadline:
+        if deadline is not None and clock.now() >= deadline:
             break
-        atlas = plan_layout(mesh, rule, renderer, config, deadline, align)
+        budget = None if deadline is None else unlimited(clock).until(deadline)
+        atlas = plan_layout(mesh, rule, renderer, config, budget, align)
         if align:
             facts["layout"] = atlas.facts
         if not atlas.moved:
             return atlases
-        if deadline is None or time.perf_counter() <= deadline:
+        if deadline is None or clock.now() <= deadline:
             atlases.append(atlas)
         if not atlas.aligned:
             break
@@ -391,7 +394,7 @@ def _timely_layouts(
 
 
 def _method_end(config: OptimizeConfig, context: RunContext, started: float) -> float | None:
-    """When the method must be done (``time.perf_counter()``; None: no budget): its budget
+    """When the method must be done (an instant on ``context.clock``; None: no budget): its budget
     from ``started``, less the job's ``reserve`` after it."""
     if config.time_budget is None:
         return None
@@ -412,7 +415,7 @@ class _Trials:
     ):
         self.config, self.context, self.started, self.end = config, context, started, end
         self.cameras = cameras
-        self.seconds = None if end is None else TRIAL_SHARE * (end - time.perf_counter())
+        self.seconds = None if end is None else TRIAL_SHARE * (end - context.clock.now())
         self.steps_each = max(1, round(TRIAL_SHARE * config.steps))
         self.results: dict[str, MethodResult] = {}
         self.models: dict[str, Any] = {}
@@ -430,7 +433,7 @@ class _Trials:
             layout.validation.find_taps()
         deadline = None
         if self.end is not None and self.seconds is not None:
-            deadline = min(time.perf_counter() + self.seconds, self.end)
+            deadline = min(self.context.clock.now() + self.seconds, self.end)
         first = not self.results
         phase = _Phase(self.config, self.context, self.started, self.steps, first, last=False)
         pool = training_views(layout.renderer, self.cameras, layout.validation.sizes, True)
@@ -505,9 +508,9 @@ class _Phase:
         **handover: Any,
     ) -> MethodResult:
         """:meth:`Layout.fit` for at most ``steps`` steps, its loop ending by ``loop_end``
-        (``time.perf_counter()``; None: no budget) with ``reserve`` seconds after it; its
+        (an instant on the context's clock; None: no budget) with ``reserve`` seconds after it; its
         ``best_step`` counted on from the race's steps, as its events are (0: its start)."""
-        now = time.perf_counter()
+        now = self.context.clock.now()
         start = self.started if self.first else now
         config = replace(self.config, steps=steps)
         if loop_end is not None:
