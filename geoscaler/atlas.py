@@ -1,4 +1,4 @@
-"""Re-allocating a texture atlas to the texels the views ask of each chart (issue 17).
+"""Re-allocating a texture atlas to the texels the views ask of each chart.
 
 With its own UVs a scan's texture spends most of its texels on nothing (UV coverage of 8 to
 50 %) and the rest evenly, whatever the views show of each chart. :func:`repack` finds the
@@ -64,22 +64,22 @@ HIDDEN_SHARE = 0.25
 shows (inside, underneath) keep a quarter of the median density rather than none."""
 PACKER_MARGIN = 1
 """Texels of padding asked of xatlas beyond the plan: its own padding is measured on its
-conservative raster of the charts it stretched, and left charts one texel closer than asked
-(stool, sofa) by the guard's measure, :func:`padding_violations`."""
+conservative raster of the charts it stretched, and can leave charts one texel closer than
+asked by the guard's measure, :func:`padding_violations`."""
 MIN_PADDING, MAX_PADDING = 4, 16
-"""Bounds of the texels kept empty between charts (:func:`padding_for`). At least 4: on the
-banana at 4x (10 views per set, the bake alone) 2 texels gave 49.29 / 50.70 dB PSNR-fg at
-2.4 / 4.0, 4 texels 49.51 / 52.60 (bicubic 48.30 / 53.48): far views read coarse levels
-across charts; bob lost 0.07 dB at 2.4."""
+"""Bounds of the texels kept empty between charts (:func:`padding_for`): at least 4, as far
+views read coarse mip levels across charts and 2 texels let neighbours mix there; at most 16,
+as padding is taken from the charts' density (``benchmarks/far_views.py``; see
+docs/decisions/atlas-padding.md)."""
 ALIGNMENT = int(2 * GRAZING_STRETCH)
 """Texels charts are aligned to where far views minify (:func:`alignment_for`): a frontal
-lookup reads level 0 and 1, a grazing one (GRAZING_STRETCH) 3 levels coarser, 16-texel blocks.
-The chain's bake alone at 1024 from 4096 (old gutters), 6 views a set, far gain over bicubic:
--4.45 dB unaligned, -1.25 / +0.18 / +0.37 aligned to 4 / 8 / 16 texels (k 1.67 -> 1.22)."""
+lookup reads level 0 and 1, a grazing one (GRAZING_STRETCH) 3 levels coarser: 16-texel blocks
+keep the mip blocks those views read the original's (``benchmarks/far_views.py``; see
+docs/decisions/atlas-chart-alignment.md)."""
 CUT_SIDE = 0.5
 """Longest side, as a share of the atlas's side, of a chart left whole: a longer one bounds
-the density of any whole-chart packing (``benchmarks/layout_bounds.py``: one chart spans the
-square on the lego, the mug and the peach at 4x)."""
+the density of any whole-chart packing (``benchmarks/layout_bounds.py`` measures that bound: on
+scans one chart can span the whole square at 4x)."""
 SEPARATION = 1e-3
 """UV units between the shifts of a cut chart's pieces as xatlas sees them
 (:func:`group_charts`)."""

@@ -291,13 +291,12 @@ def learned_fits(validation: Validation, budget: float | None, reserve: float) -
     validated, the baselines scored, the views the validation still needs, the rows' scoring),
     then ``reserve``. Where this does not fit, the loop could not take a step (it asks
     ``views_per_step`` views and :data:`~geoscaler.optimize.FINISH_MARGIN` on the same
-    estimate) and would still validate its start: what overran short budgets (a 4096 scan's
-    nine views at 15 s: 25-28 s of wall clock).
+    estimate) and would still validate its start, overrunning a short budget.
 
     Views are priced on one validation view cached here first (the loop would cache it), after
-    the reference textures are made (bob's first view cost 0.83 s with them, 0.37 without).
-    Not the loop's test itself: with its margin, 15 s runs that had made 19-64 steps within
-    the budget (the cat, the frypan) were not run."""
+    the reference textures are made, whose cost would otherwise swell that view's. Not the
+    loop's test itself: with its margin, short runs that do make steps within their budget
+    would not run (see docs/decisions/finish-margin.md)."""
     if budget is None:
         return True
     started = validation.clock.now()

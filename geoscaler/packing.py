@@ -43,12 +43,13 @@ MIN_BOX_TEXELS = 2.0
 SEARCH_STEPS = 12
 """Bisection steps of the density search (from 1/16 of the all-texels bound: about 0.3 %)."""
 XATLAS_UNIT = 1024.0
-"""xatlas units per scaled UV unit (see the module's note on faces it ignores): the chain's 24
-faces under its epsilon (of 16,384) boxed three of its charts, k 1.28 instead of 1.47 at 4x."""
+"""xatlas units per scaled UV unit (see the module's note on faces it ignores): large enough
+that only degenerate faces fall under its epsilon, since charts with ignored faces are packed
+as boxes, less densely (see docs/decisions/packing-xatlas-settings.md)."""
 PROBES = (1.16, 1.08, 1.04, 1.02)
 """Density steps tried above the bisection's answer: xatlas places charts by a randomised
-heuristic, so whether they fit is not monotone in the density (the chain at 8x: no fit at
-314.8 texels per unit, a fit at 331.0 with other proxies)."""
+heuristic, so whether they fit is not monotone in the density (see
+docs/decisions/packing-xatlas-settings.md)."""
 SCALE_TOLERANCE = 1e-3
 """Relative error allowed between a chart's planned and packed scale."""
 RETIRED_ATLASES = 8

@@ -31,24 +31,12 @@ from geoscaler.texture import (
     texture_to_linear,
 )
 
-# Texels are optimised as sRGB values (see TexelModel). Measured at 4x, 300 steps, no SSIM term:
-# learning rate 0.003 / 0.01 gained +2.84 / +2.82 dB PSNR-fg over bicubic on Q on the lego scan
-# and +1.86 / +1.88 dB on spot. (Parameterised in linear light, lr 0.05 sent the lego to 30 dB
-# before it recovered and 0.002 was needed for +2.79 dB.) The SSIM term gained less at equal time.
-# Budgets cut runs short (15 s: 6-47 steps): on bob at 4x, 20 steps gained +0.44 / +0.57 / +0.72
-# / +0.77 dB at lr 0.005 (10 warm-up steps) / 0.01 / 0.02 / 0.04 (3), 150 steps +1.00 / +1.06 /
-# +1.07 at 0.005 / 0.01 / 0.02; hence 0.02, doubled at most for runs cut short. That rate wrecks
-# a near-lossless start (4096 scans at 1024: Q fell from 59 to 49 dB on the banana), so a
-# candidate that validates worse sends the loop back to its best at a quarter of the rate
-# (60 s at 4x: chain +1.49 dB over bicubic instead of Lanczos's +0.92, banana +1.34 instead of
-# +0.69; bob +1.07 with, +1.05 without: it never backtracked).
-# Adam's first steps move every texel by about the rate: the loop now starts with 5
-# majorise-minimise steps (geoscaler.majorize), then Adam at 0.01 without a boost. Gains over
-# bicubic on 20 Q views after 5 / 20 / 80 steps, 48 training views
-# (`python benchmarks/first_steps.py`, 4x), Adam at 0.02 from Lanczos -> the majorised start:
-# bob +0.51 / +0.92 / +1.06 -> +0.87 / +0.96 / +1.05, sofa +0.40 / +1.00 / +1.42 -> +1.24 /
-# +1.29 / +1.43, frypan +0.90 / +1.35 / +1.74 -> +1.38 / +1.59 / +1.75, spot (not tuned on)
-# +1.18 / +1.65 / +1.86 -> +1.73 / +1.80 / +1.86.
+# Texels are optimised as sRGB values (see TexelModel): in linear light the same rate is far
+# too large for dark texels. The first steps are majorise-minimise steps (geoscaler.majorize),
+# since Adam's first steps move every texel by about the rate; then AdamW at 0.01 with a short
+# warm-up. A candidate that validates worse sends the loop back to its best at a quarter of the
+# rate, so a near-lossless start is not wrecked. No SSIM term: it gained less at equal time
+# (benchmarks/first_steps.py; see docs/decisions/direct-step-schedule.md).
 DEFAULT_CONFIG = {
     "steps": 300,
     "lr": 0.01,

@@ -1,4 +1,4 @@
-"""``direct`` in a new UV layout (``--uv repack`` and ``--uv auto``, issue 17).
+"""``direct`` in a new UV layout (``--uv repack`` and ``--uv auto``).
 
 The charts are repacked by the texels the training views ask of them
 (:func:`geoscaler.atlas.repack`, planned on what every training camera sees), the
@@ -116,9 +116,9 @@ def plan_layout(
     None: no limit), its chart scales from the faces every
     training camera sees, one sample per pixel; ``align``: False never aligns charts.
 
-    Every camera of the training pool, not a few: on 8 of its 48 the mug's charts that those
-    views saw little were starved (its bake alone 0.86 dB below bicubic on Q, +0.41 dB from
-    all 48; ``benchmarks/repack.py --methods bake``)."""
+    Every camera of the training pool, not a few: charts that few views see are starved
+    otherwise (``benchmarks/repack.py --methods bake``; see
+    docs/decisions/repack-planning-cameras.md)."""
     cameras = sample_training_cameras(config.pool_views, config.seed, config.distances)
     sizes = output_sizes_for(mesh, rule, renderer)
     references = renderer.reference_maps()
