@@ -22,11 +22,12 @@ import numpy as np
 import torch
 
 from geoscaler.cameras import Camera
+from geoscaler.color import linear_to_srgb, texture_to_linear, to_rgb
 from geoscaler.errors import GeoscalerError
 from geoscaler.filters import reference_textures
 from geoscaler.mesh import TexturedMesh
 from geoscaler.protocol import IMAGE_SIZE, SUPERSAMPLE
-from geoscaler.texture import build_mip_chain, linear_to_srgb, texture_to_linear, to_rgb
+from geoscaler.texture import build_mip_chain
 
 from .orbit import view_scale
 

@@ -31,6 +31,7 @@ import torch
 
 from geoscaler.arguments import DEFAULT_TIME_BUDGET, check_method, check_scale, method_options
 from geoscaler.clock import WALL_CLOCK
+from geoscaler.color import linear_to_texture, quantize_linear
 from geoscaler.downsampling import product_evaluation
 from geoscaler.events import Controller, ProgressEvent
 from geoscaler.job import Downsampled, JobObserver, checked_output_sizes, downsample
@@ -39,7 +40,7 @@ from geoscaler.methods import default_steps, is_learned
 from geoscaler.metrics import evaluate
 from geoscaler.protocol import GAIN_REFERENCE, PROTOCOL_EVALUATION, Evaluation
 from geoscaler.render import Renderer
-from geoscaler.texture import MipTexture, linear_to_texture, quantize_linear
+from geoscaler.texture import MipTexture
 from geoscaler.views import ViewSet
 
 from .gl_renderer import srgb_mip_chain

@@ -28,13 +28,14 @@ from pathlib import Path
 import torch
 
 from geoscaler.cameras import validation_cameras
+from geoscaler.color import texture_to_linear
 from geoscaler.filters import lanczos, reference_textures
 from geoscaler.io import load_mesh
 from geoscaler.losses import view_loss
 from geoscaler.mesh import TexturedMesh
 from geoscaler.procedural import demo_mesh
 from geoscaler.render import Renderer, resolve_device
-from geoscaler.texture import MipTexture, texture_to_linear
+from geoscaler.texture import MipTexture
 from geoscaler.views import ViewCache, ViewSet
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from geoscaler.cameras import view_set_cameras
+from geoscaler.color import linear_to_texture, texture_to_linear
 from geoscaler.downsampling import product_evaluation
 from geoscaler.filters import bicubic, lanczos, output_sizes, reference_textures
 from geoscaler.io import load_mesh
@@ -37,7 +38,7 @@ from geoscaler.optimize import OptimizeConfig, optimize
 from geoscaler.process import configure_process
 from geoscaler.protocol import PROTOCOL_EVALUATION
 from geoscaler.render import Renderer
-from geoscaler.texture import build_mip_chain, linear_to_texture, texture_to_linear
+from geoscaler.texture import build_mip_chain
 from geoscaler.validation import Validation, validation_view_sets
 from geoscaler.views import ViewCache, ViewSet
 

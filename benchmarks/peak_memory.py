@@ -40,9 +40,9 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from geoscaler.color import to_rgb
 from geoscaler.io import load_mesh, save_mesh
 from geoscaler.procedural import demo_mesh
-from geoscaler.texture import to_rgb
 
 SAMPLE_SECONDS = 0.2
 

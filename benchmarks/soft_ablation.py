@@ -38,6 +38,7 @@ from pathlib import Path
 from geoscaler.adamw import AdamW
 from geoscaler.bench import MeshEntry, find_meshes
 from geoscaler.cameras import sample_training_cameras, spread_order, view_set_cameras
+from geoscaler.color import linear_to_texture, texture_to_linear
 from geoscaler.filters import lanczos, output_sizes, reference_textures
 from geoscaler.io import load_mesh
 from geoscaler.job import no_worse_than_filters
@@ -54,7 +55,6 @@ from geoscaler.protocol import (
 from geoscaler.render import Renderer, resolve_device
 from geoscaler.rows import protocol_row
 from geoscaler.soft import SoftSettings
-from geoscaler.texture import linear_to_texture, texture_to_linear
 from geoscaler.uvmaps import reachable_masks
 from geoscaler.validation import Validation, validation_view_sets
 from geoscaler.views import ViewCache, ViewSet, training_views

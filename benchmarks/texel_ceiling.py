@@ -29,6 +29,7 @@ import torch
 
 from geoscaler.bench import find_meshes
 from geoscaler.cameras import validation_cameras
+from geoscaler.color import linear_to_texture
 from geoscaler.downsampling import product_evaluation
 from geoscaler.filters import output_sizes
 from geoscaler.io import load_mesh
@@ -38,7 +39,6 @@ from geoscaler.methods.registry import RunContext
 from geoscaler.optimize import OptimizeConfig, optimize
 from geoscaler.protocol import PROTOCOL_EVALUATION
 from geoscaler.render import Renderer, resolve_device
-from geoscaler.texture import linear_to_texture
 from geoscaler.validation import Validation
 from geoscaler.views import ViewCache, ViewSet
 

@@ -23,12 +23,13 @@ import torch
 from PIL import Image
 from scipy.ndimage import distance_transform_edt
 
+from geoscaler.color import linear_to_srgb, srgb_to_linear
 from geoscaler.encoded import Decoding, EncodedMipTexture, decode_codes
 from geoscaler.filters import resize_float
 from geoscaler.maps import resize_map
 from geoscaler.raster import rasterize
 from geoscaler.sizes import COLOR, NORMAL
-from geoscaler.texture import UVFootprint, linear_to_srgb, srgb_to_linear
+from geoscaler.texture import UVFootprint
 
 
 def decode(pixels: np.ndarray, kind: str) -> torch.Tensor:

@@ -13,14 +13,8 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from geoscaler.texture import (
-    DECODED_SRGB,
-    MipLayout,
-    MipTexture,
-    gather,
-    mip_sizes,
-    next_mip_level,
-)
+from geoscaler.color import DECODED_SRGB
+from geoscaler.texture import MipLayout, MipTexture, gather, mip_sizes, next_mip_level
 
 ENCODED_BAND_TEXELS = 1 << 20
 """Texels of level 0 an :class:`EncodedMipTexture` decodes at a time to make level 1 (12 MB of
@@ -32,9 +26,9 @@ float32 value of each 8-bit code)``."""
 
 
 def srgb_decoding(channels: int) -> Decoding:
-    """The :class:`Decoding` of :func:`~geoscaler.texture.texture_to_linear`: linear RGB from
+    """The :class:`Decoding` of :func:`~geoscaler.color.texture_to_linear`: linear RGB from
     an sRGB texture of ``channels`` channels (grey repeated, alpha not read:
-    :func:`~geoscaler.texture.to_rgb`)."""
+    :func:`~geoscaler.color.to_rgb`)."""
     return [(c if channels >= 3 else 0, DECODED_SRGB) for c in range(3)]
 
 

@@ -21,7 +21,7 @@ from typing import Protocol, runtime_checkable
 
 import torch
 
-from geoscaler.texture import linear_to_srgb, linear_to_srgb_slope
+from geoscaler.color import linear_to_srgb, linear_to_srgb_slope
 from geoscaler.views import ViewCache, mip_chains
 
 DAMPING = 1e-3

@@ -41,11 +41,11 @@ import numpy as np
 import torch
 from PIL import Image
 
+from geoscaler.color import linear_to_srgb, srgb_to_linear
 from geoscaler.errors import GeoscalerError
 from geoscaler.filters import resize_channels
 from geoscaler.mesh import check_texture
 from geoscaler.sizes import COLOR, DATA, NORMAL, TEXTURE_CLASSES
-from geoscaler.texture import linear_to_srgb, srgb_to_linear
 
 __all__ = [
     "COLOR",
@@ -94,7 +94,7 @@ _UNIT = _LEVELS / np.float32(255.0)
 """``(256,)`` float32: 8-bit value -> [0, 1]."""
 _SRGB_DECODE = srgb_to_linear(torch.from_numpy(_UNIT)).numpy()
 """``(256,)`` float32: 8-bit sRGB value -> linear light (the same numbers as
-:func:`geoscaler.texture.texture_to_linear`)."""
+:func:`geoscaler.color.texture_to_linear`)."""
 _SNORM_DECODE = _LEVELS * np.float32(2.0 / 255.0) - np.float32(1.0)
 """``(256,)`` float32: 8-bit normal-map value -> vector component ``2 v / 255 - 1``."""
 
@@ -289,7 +289,7 @@ def _resize_color(
     """COLOR: sRGB channels Lanczos-filtered in linear light, alpha as linear coverage.
 
     Per channel: ``(H, W)`` uint8 -> decode table -> float32 linear -> Lanczos -> clip to
-    [0, 1] -> sRGB encode (:func:`geoscaler.texture.linear_to_srgb`) -> ``round(255 x)``.
+    [0, 1] -> sRGB encode (:func:`geoscaler.color.linear_to_srgb`) -> ``round(255 x)``.
     """
     channels = pixels.shape[2]
     colours = channels - 1 if channels in (2, 4) else channels

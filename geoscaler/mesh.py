@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from .color import linear_to_srgb, srgb_to_linear
 from .errors import GeoscalerError
-from .texture import linear_to_srgb, srgb_to_linear
 
 
 @dataclass(frozen=True, eq=False)

@@ -36,6 +36,7 @@ import torch
 from geoscaler.adamw import AdamW
 from geoscaler.cameras import Camera, sample_training_cameras
 from geoscaler.clock import Budget
+from geoscaler.color import quantize_linear
 from geoscaler.events import Controller, ProgressEvent
 from geoscaler.losses import PerceptualTerm, view_loss
 from geoscaler.majorize import Sloped, majorized_step
@@ -43,7 +44,7 @@ from geoscaler.protocol import RANGE_S
 from geoscaler.render import Renderer
 from geoscaler.schedule import Schedule
 from geoscaler.soft import SoftSettings
-from geoscaler.texture import fill_gutters, quantize_linear
+from geoscaler.texture import fill_gutters
 from geoscaler.uvmaps import reachable_masks
 from geoscaler.validation import Best as _Best
 from geoscaler.validation import Scores, Validation, ViewCost

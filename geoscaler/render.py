@@ -5,7 +5,7 @@ then :meth:`Renderer.shade` interpolates UVs, takes their screen derivatives and
 texture for every covered sample, and :meth:`Renderer.resolve` box-averages the 2 x 2 samples of
 each pixel. Shading and resolving are differentiable with respect to texels and UVs.
 
-Colours are linear light until :func:`geoscaler.texture.linear_to_srgb` encodes the final image.
+Colours are linear light until :func:`geoscaler.color.linear_to_srgb` encodes the final image.
 The background is black. Pixel colour = base-colour texture sample x base-colour factor (unlit).
 """
 
@@ -18,18 +18,14 @@ import numpy as np
 import torch
 
 from geoscaler.cameras import Camera
+from geoscaler.color import linear_to_srgb, texture_to_linear
 from geoscaler.devices import mesh_tensors, resolve_device
 from geoscaler.encoded import EncodedMipTexture
 from geoscaler.filters import reference_textures
 from geoscaler.mesh import TexturedMesh
 from geoscaler.protocol import PROTOCOL_EVALUATION, Evaluation
 from geoscaler.raster import GBuffer, rasterize
-from geoscaler.texture import (
-    MipTexture,
-    UVFootprint,
-    linear_to_srgb,
-    texture_to_linear,
-)
+from geoscaler.texture import MipTexture, UVFootprint
 
 
 class Renderer:

@@ -51,11 +51,12 @@ from dataclasses import dataclass
 import torch
 
 from geoscaler.cameras import Camera
+from geoscaler.color import linear_to_srgb, texture_to_linear
 from geoscaler.devices import mesh_tensors, resolve_device
 from geoscaler.filters import reference_textures
 from geoscaler.mesh import TexturedMesh
 from geoscaler.protocol import PROTOCOL_EVALUATION, Evaluation
-from geoscaler.texture import MipLayout, MipTexture, gather, linear_to_srgb, texture_to_linear
+from geoscaler.texture import MipLayout, MipTexture, gather
 
 SIGMA = 1e-4
 """PyTorch3D's usual ``BlendParams.sigma``: the width of the edge sigmoid, in squared NDC."""

@@ -31,10 +31,10 @@ from scipy.special import ndtr, stdtrit
 
 from geoscaler.cameras import Camera, fibonacci_directions, spread_order, view_set_cameras
 from geoscaler.clock import WALL_CLOCK, Clock
+from geoscaler.color import linear_to_texture, texture_to_linear, to_rgb
 from geoscaler.metrics import evaluate, mean_metrics, psnr_fg
 from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, VALIDATION_DISTANCE
 from geoscaler.render import Renderer
-from geoscaler.texture import linear_to_texture, texture_to_linear, to_rgb
 from geoscaler.views import ViewCache, ViewSet, mip_chains
 
 GUARD_VIEWS = 20

@@ -20,18 +20,12 @@ import numpy as np
 import torch
 
 from geoscaler.cameras import Camera, view_set_cameras
+from geoscaler.color import linear_to_srgb, texture_to_linear
 from geoscaler.metrics import evaluate
 from geoscaler.raster import GBuffer
 from geoscaler.render import Renderer
 from geoscaler.soft import SoftFragments, SoftRenderer, SoftSettings
-from geoscaler.texture import (
-    MipLayout,
-    MipTexture,
-    TapMatrix,
-    UVFootprint,
-    linear_to_srgb,
-    texture_to_linear,
-)
+from geoscaler.texture import MipLayout, MipTexture, TapMatrix, UVFootprint
 
 Progress = Callable[[int, int], None]
 """Called as ``progress(done, total)`` while long work runs."""

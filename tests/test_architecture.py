@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = {"geoscaler": ROOT / "geoscaler", "geoscaler.app": ROOT / "app"}
 
 LAYERS = [
-    ["errors", "protocol", "process", "clock"],
+    ["errors", "protocol", "process", "clock", "color"],
     [""],  # the package itself (geoscaler/__init__.py)
     [
         "texture",

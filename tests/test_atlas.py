@@ -26,6 +26,7 @@ from geoscaler.atlas import (
 from geoscaler.bake import ChartMaps, bake, decode, decoding, encode
 from geoscaler.cameras import validation_cameras
 from geoscaler.clock import Budget, ManualClock
+from geoscaler.color import srgb_to_linear
 from geoscaler.encoded import EncodedMipTexture
 from geoscaler.filters import resize_float
 from geoscaler.mesh import Material, TexturedMesh, compute_vertex_normals
@@ -39,7 +40,7 @@ from geoscaler.packing import (
 )
 from geoscaler.render import Renderer
 from geoscaler.sizes import COLOR, DATA, NORMAL
-from geoscaler.texture import MipTexture, UVFootprint, srgb_to_linear
+from geoscaler.texture import MipTexture, UVFootprint
 from geoscaler.uvmaps import chart_labels, cut_charts
 from geoscaler.views import ViewSet
 

@@ -13,12 +13,13 @@ from app_support import gl_context, import_app_module
 from conftest import mesh_params
 
 from geoscaler.cameras import Camera, validation_cameras
+from geoscaler.color import texture_to_linear
 from geoscaler.filters import reference_textures
 from geoscaler.io import load_mesh
 from geoscaler.metrics import psnr_fg
 from geoscaler.procedural import demo_mesh
 from geoscaler.render import Renderer
-from geoscaler.texture import MipTexture, texture_to_linear
+from geoscaler.texture import MipTexture
 
 AGREEMENT_DB = 40.0
 

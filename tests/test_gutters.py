@@ -8,13 +8,14 @@ import pytest
 import torch
 
 from geoscaler.cameras import Camera, sample_extent
+from geoscaler.color import texture_to_linear
 from geoscaler.filters import lanczos, output_sizes
 from geoscaler.mesh import Material, TexturedMesh, compute_vertex_normals, weld_points
 from geoscaler.methods.direct import TexelModel
 from geoscaler.optimize import OptimizeConfig, optimize
 from geoscaler.protocol import Evaluation
 from geoscaler.render import Renderer
-from geoscaler.texture import build_mip_chain, fill_gutters, texture_to_linear
+from geoscaler.texture import build_mip_chain, fill_gutters
 from geoscaler.uvmaps import face_max_levels, reachable_masks, reachable_texels
 from geoscaler.validation import Validation, validation_view_sets
 from geoscaler.views import ViewCache, ViewSet

@@ -6,18 +6,18 @@ from mesh_support import three_material_demo
 
 import geoscaler.optimize as optimize_module
 from geoscaler.cameras import validation_cameras
+from geoscaler.color import (
+    linear_to_srgb,
+    linear_to_srgb_slope,
+    srgb_to_linear,
+    srgb_to_linear_slope,
+)
 from geoscaler.majorize import curvature_bounds, majorized_step
 from geoscaler.methods.direct import TexelModel
 from geoscaler.optimize import OptimizeConfig, optimize
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
 from geoscaler.render import Renderer
-from geoscaler.texture import (
-    linear_to_srgb,
-    linear_to_srgb_slope,
-    srgb_to_linear,
-    srgb_to_linear_slope,
-)
 from geoscaler.validation import Validation, validation_view_sets
 from geoscaler.views import ViewCache, ViewSet
 

@@ -11,6 +11,7 @@ from mesh_support import three_material_demo
 
 from geoscaler.cameras import validation_cameras
 from geoscaler.clock import Budget, ManualClock
+from geoscaler.color import linear_to_srgb, linear_to_texture, texture_to_linear
 from geoscaler.events import Controller
 from geoscaler.filters import lanczos, output_sizes, reference_textures
 from geoscaler.losses import rendering_loss, view_loss
@@ -26,7 +27,6 @@ from geoscaler.optimize import (
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
 from geoscaler.render import Renderer
-from geoscaler.texture import linear_to_srgb, linear_to_texture, texture_to_linear
 from geoscaler.validation import Validation, validation_view_sets
 from geoscaler.views import ViewCache, ViewSet, training_views
 

@@ -10,6 +10,7 @@ import torch
 from mesh_support import quad_mesh, three_material_demo
 
 from geoscaler.cameras import Camera
+from geoscaler.color import quantize_linear, texture_to_linear
 from geoscaler.filters import lanczos, output_sizes, reference_textures
 from geoscaler.methods.direct import TexelModel
 from geoscaler.optimize import OptimizeConfig, optimize
@@ -25,7 +26,6 @@ from geoscaler.soft import (
     interpolate,
     soft_rasterize,
 )
-from geoscaler.texture import quantize_linear, texture_to_linear
 from geoscaler.validation import Validation, validation_view_sets
 from geoscaler.views import training_views
 

@@ -7,6 +7,13 @@ import pytest
 import torch
 
 from geoscaler import encoded as encoded_module
+from geoscaler.color import (
+    linear_to_srgb,
+    linear_to_texture,
+    srgb_to_linear,
+    texture_to_linear,
+    to_rgb,
+)
 from geoscaler.encoded import EncodedMipTexture
 from geoscaler.texture import (
     MipLayout,
@@ -15,13 +22,8 @@ from geoscaler.texture import (
     UVFootprint,
     build_mip_chain,
     fill_gutters,
-    linear_to_srgb,
-    linear_to_texture,
     mip_sizes,
     next_mip_level,
-    srgb_to_linear,
-    texture_to_linear,
-    to_rgb,
 )
 
 

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 from geoscaler.cameras import fibonacci_directions, spread_order
+from geoscaler.color import texture_to_linear
 from geoscaler.filters import bicubic, lanczos, output_sizes, reference_textures
 from geoscaler.metrics import mean_metrics
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, Evaluation
 from geoscaler.render import Renderer
-from geoscaler.texture import texture_to_linear
 from geoscaler.validation import (
     FLOOR_CONFIDENCE,
     GUARD_VIEWS,

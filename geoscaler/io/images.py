@@ -2,7 +2,7 @@
 
 Every image a mesh file brings in becomes a texture through :func:`image_to_texture`
 (``(H, W, 3 or 4)`` uint8, row 0 at the top; grey is broadcast with
-:func:`geoscaler.texture.to_rgb`) and is kept with its bytes as a
+:func:`geoscaler.color.to_rgb`) and is kept with its bytes as a
 :class:`~geoscaler.mesh.SourceImage` (:func:`source_image`). Decoding problems are reported as
 ``GeoscalerError`` naming the mesh file that references the image.
 
@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from geoscaler.color import to_rgb
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import SourceImage
-from geoscaler.texture import to_rgb
 
 from .paths import safe_characters
 

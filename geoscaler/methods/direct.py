@@ -11,6 +11,7 @@ from collections.abc import Sequence
 
 import torch
 
+from geoscaler.color import linear_to_srgb, srgb_to_linear, srgb_to_linear_slope, texture_to_linear
 from geoscaler.filters import lanczos
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods.learned import fit, loop_config, method_renderer
@@ -24,12 +25,6 @@ from geoscaler.methods.registry import (
 from geoscaler.methods.repacked import repacked_direct
 from geoscaler.render import Renderer
 from geoscaler.sizes import SizeRule
-from geoscaler.texture import (
-    linear_to_srgb,
-    srgb_to_linear,
-    srgb_to_linear_slope,
-    texture_to_linear,
-)
 
 # Texels are optimised as sRGB values (see TexelModel): in linear light the same rate is far
 # too large for dark texels. The first steps are majorise-minimise steps (geoscaler.majorize),

@@ -9,13 +9,13 @@ from collections.abc import Mapping
 from typing import Any
 
 from geoscaler.clock import Budget
+from geoscaler.color import linear_to_texture
 from geoscaler.losses import PerceptualTerm
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext, output_sizes_for
 from geoscaler.optimize import Model, OptimizeConfig, optimize
 from geoscaler.render import Renderer
 from geoscaler.sizes import SizeRule
-from geoscaler.texture import linear_to_texture
 from geoscaler.validation import Scores, Validation, validation_view_sets
 from geoscaler.views import ViewCache
 

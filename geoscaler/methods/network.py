@@ -27,6 +27,7 @@ import numpy as np
 import torch
 from PIL import Image
 
+from geoscaler.color import texture_to_linear
 from geoscaler.errors import GeoscalerError
 from geoscaler.filters import lanczos, reference_textures, target_size
 from geoscaler.losses import PerceptualTerm
@@ -42,7 +43,6 @@ from geoscaler.nn.network import (
 )
 from geoscaler.nn.perceptual import perceptual_loss
 from geoscaler.sizes import SizeRule
-from geoscaler.texture import texture_to_linear
 from geoscaler.uvmaps import (
     check_square,
     geometry_maps,

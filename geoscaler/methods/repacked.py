@@ -25,6 +25,7 @@ from geoscaler.atlas import Atlas, repack
 from geoscaler.bake import ChartMaps, bake
 from geoscaler.cameras import Camera, sample_training_cameras
 from geoscaler.clock import Budget, Clock, unlimited
+from geoscaler.color import texture_to_linear
 from geoscaler.errors import GeoscalerError
 from geoscaler.events import ProgressEvent
 from geoscaler.mesh import TexturedMesh
@@ -33,7 +34,6 @@ from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext, 
 from geoscaler.optimize import FINISH_MARGIN, OptimizeConfig
 from geoscaler.render import Renderer
 from geoscaler.sizes import COLOR, SizeRule
-from geoscaler.texture import texture_to_linear
 from geoscaler.uvmodes import check_uv_mode
 from geoscaler.validation import MIN_FROZEN, Validation, sets_below, validation_view_sets
 from geoscaler.views import ViewCache, training_views
