@@ -1,8 +1,8 @@
-"""The PROTOCOL.md renderer in OpenGL (moderngl): the GLSL twin of :mod:`geoscaler.render`.
+"""The PROTOCOL.md renderer in OpenGL (moderngl): the GLSL twin of :mod:`geoscaler.render.renderer`.
 
 A view is drawn into a float framebuffer at ``supersample`` x the image size (linear light,
 depth-tested, no culling), box-averaged and encoded to sRGB by a second pass. Textures are
-``GL_SRGB8_ALPHA8`` with their mip chain built like :func:`geoscaler.texture.build_mip_chain`
+``GL_SRGB8_ALPHA8`` with their mip chain built like :func:`geoscaler.render.texture.build_mip_chain`
 (linear-light 2 x 2 box, odd rows/columns dropped) and uploaded level by level, so the hardware
 decodes sRGB and filters trilinearly over the same levels as the torch sampler.
 ``tests/test_gl_renderer.py`` holds the two renderers to the same pixels.
@@ -21,13 +21,13 @@ import moderngl
 import numpy as np
 import torch
 
-from geoscaler.cameras import Camera
 from geoscaler.color import linear_to_srgb, texture_to_linear, to_rgb
 from geoscaler.errors import GeoscalerError
-from geoscaler.filters import reference_textures
 from geoscaler.mesh import TexturedMesh
 from geoscaler.protocol import IMAGE_SIZE, SUPERSAMPLE
-from geoscaler.texture import build_mip_chain
+from geoscaler.render.cameras import Camera
+from geoscaler.render.texture import build_mip_chain
+from geoscaler.resize.filters import reference_textures
 
 from .orbit import view_scale
 
@@ -106,7 +106,7 @@ def srgb_mip_chain(texture: np.ndarray) -> list[np.ndarray]:
     """The protocol's mip chain of an 8-bit sRGB texture, each level as 8-bit sRGB RGBA.
 
     Level 0 is the texture itself; coarser levels are 2 x 2 box averages in linear light
-    (:func:`geoscaler.texture.build_mip_chain`), encoded and rounded to 8 bits to be stored
+    (:func:`geoscaler.render.texture.build_mip_chain`), encoded and rounded to 8 bits to be stored
     in a ``GL_SRGB8_ALPHA8`` texture, as a GPU stores generated mip levels.
 
     Returns:

@@ -21,7 +21,6 @@ import numpy as np
 from imgui_bundle import hello_imgui, imgui, immapp
 
 from geoscaler.clock import WALL_CLOCK
-from geoscaler.downsampling import Job, check_output_name, export
 from geoscaler.errors import GeoscalerError
 from geoscaler.io import (
     SUPPORTED_SUFFIXES,
@@ -31,11 +30,12 @@ from geoscaler.io import (
     save_png,
     write_atomically,
 )
-from geoscaler.job import checked_output_sizes
 from geoscaler.mesh import TexturedMesh
+from geoscaler.pipeline.downsampling import Job, check_output_name, export
+from geoscaler.pipeline.job import checked_output_sizes
 from geoscaler.procedural import demo_mesh
-from geoscaler.report import dumps, report_document
-from geoscaler.sizes import size_plan
+from geoscaler.report.documents import dumps, report_document
+from geoscaler.resize.sizes import size_plan
 
 from .panels import BookmarksPanel, ExportPanel, OptimisePanel, Panel, PlotsPanel, UVPanel
 from .session import DEMO_NAME, Session

@@ -1,6 +1,7 @@
 """The app's interactive camera: orbit, zoom and pan around the protocol's scene.
 
-It is a thin state over :class:`geoscaler.cameras.Camera` (one camera convention for the whole
+It is a thin state over :class:`geoscaler.render.cameras.Camera` (one camera convention for the
+whole
 project): yaw and pitch give the view direction, ``distance`` the eye distance, and ``pan`` an
 image shift in normalised device units applied after the protocol projection.
 
@@ -20,8 +21,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from geoscaler.cameras import Camera
 from geoscaler.protocol import FOV_Y_DEGREES, VALIDATION_DISTANCE
+from geoscaler.render.cameras import Camera
 
 MIN_DISTANCE = 1.1  # just outside the unit sphere that holds the normalised mesh
 MAX_DISTANCE = 12.0

@@ -16,9 +16,9 @@ import torch
 from imgui_bundle import ImVec2, ImVec4, imgui, implot
 
 from geoscaler.methods import is_learned, method_names
-from geoscaler.metrics import psnr_fg, ssim_fg
 from geoscaler.protocol import VIEWS
-from geoscaler.uvmodes import UV_MODES
+from geoscaler.render.metrics import psnr_fg, ssim_fg
+from geoscaler.uv.uvmodes import UV_MODES
 
 from .gl_renderer import use_screen
 from .training import SSIM_VIEWS, TrainingSettings, TrainingState

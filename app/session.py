@@ -11,9 +11,9 @@ from pathlib import Path
 import moderngl
 import numpy as np
 
-from geoscaler.filters import bicubic, reference_textures
 from geoscaler.mesh import TexturedMesh
 from geoscaler.protocol import IMAGE_SIZE
+from geoscaler.resize.filters import bicubic, reference_textures
 
 from .bookmarks import Bookmarks
 from .gl_renderer import GLRenderer, Surface

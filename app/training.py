@@ -1,8 +1,9 @@
 """The optimisation as the app runs it: on a worker thread, observable from the UI thread.
 
-The worker runs :func:`geoscaler.job.downsample` -- the CLI's job -- with a
-:class:`~geoscaler.optimize.Controller` for pause/resume/stop and a
-:class:`~geoscaler.job.JobObserver` that records the caching, bicubic's score on Q (the gain's
+The worker runs :func:`geoscaler.pipeline.job.downsample` -- the CLI's job -- with a
+:class:`~geoscaler.optim.loop.Controller` for pause/resume/stop and a
+:class:`~geoscaler.pipeline.job.JobObserver` that records the caching, bicubic's score on Q (the
+gain's
 zero, scored once the validation views are in), the loss and validation PSNR and, a few times a
 second, pulls the current texture (and UVs) with ``ProgressEvent.candidate``. The UI thread
 only reads :class:`TrainingState` under its lock.
@@ -29,19 +30,24 @@ from typing import Any
 import numpy as np
 import torch
 
-from geoscaler.arguments import DEFAULT_TIME_BUDGET, check_method, check_scale, method_options
 from geoscaler.clock import WALL_CLOCK
 from geoscaler.color import linear_to_texture, quantize_linear
-from geoscaler.downsampling import product_evaluation
-from geoscaler.events import Controller, ProgressEvent
-from geoscaler.job import Downsampled, JobObserver, checked_output_sizes, downsample
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods import default_steps, is_learned
-from geoscaler.metrics import evaluate
+from geoscaler.optim.events import Controller, ProgressEvent
+from geoscaler.pipeline.arguments import (
+    DEFAULT_TIME_BUDGET,
+    check_method,
+    check_scale,
+    method_options,
+)
+from geoscaler.pipeline.downsampling import product_evaluation
+from geoscaler.pipeline.job import Downsampled, JobObserver, checked_output_sizes, downsample
 from geoscaler.protocol import GAIN_REFERENCE, PROTOCOL_EVALUATION, Evaluation
-from geoscaler.render import Renderer
-from geoscaler.texture import MipTexture
-from geoscaler.views import ViewSet
+from geoscaler.render.metrics import evaluate
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.texture import MipTexture
+from geoscaler.render.views import ViewSet
 
 from .gl_renderer import srgb_mip_chain
 
@@ -71,7 +77,7 @@ class TrainingSettings:
         scale: reduction factor per side.
         steps: step limit of learned methods (None: the method's default, :meth:`step_limit`).
         time_budget: seconds a learned method may spend, view caching included (default: the
-            CLI's, :data:`geoscaler.arguments.DEFAULT_TIME_BUDGET`; None: no limit).
+            CLI's, :data:`geoscaler.pipeline.arguments.DEFAULT_TIME_BUDGET`; None: no limit).
         evaluation: image size and views of the torch renders (protocol 1; tests use less).
         optimize: ``OptimizeConfig`` overrides for learned methods (tests use a small pool).
         renderer: what learned methods train through: ``"exact"`` or ``"soft"`` (the paper's

@@ -9,9 +9,9 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
-from geoscaler.figures import colormap
 from geoscaler.mesh import TexturedMesh
-from geoscaler.uvmaps import rasterize_uv, tiled_face_uvs, uv_corner_ids
+from geoscaler.report.figures import colormap
+from geoscaler.uv.uvmaps import rasterize_uv, tiled_face_uvs, uv_corner_ids
 
 from .gl_renderer import program
 
@@ -24,7 +24,7 @@ def chart_outlines(mesh: TexturedMesh, material: int | None = None) -> np.ndarra
     """``(E, 2, 2)`` float32 UV segments: the boundary edges of the UV charts.
 
     An edge is on a chart boundary when no other face shares both of its UV corners
-    (:func:`geoscaler.uvmaps.uv_corner_ids`). Faces are shifted by whole tiles into [0, 1)^2.
+    (:func:`geoscaler.uv.uvmaps.uv_corner_ids`). Faces are shifted by whole tiles into [0, 1)^2.
     """
     faces = mesh.faces if material is None else mesh.faces[mesh.face_material == material]
     if len(faces) == 0:
@@ -92,7 +92,7 @@ def warp_grid(displacement: np.ndarray, covered: np.ndarray, lines: int = 24) ->
 
 def heatmap(values: np.ndarray, mask: np.ndarray, top: float | None = None) -> np.ndarray:
     """``(H, W, 4)`` uint8 opaque picture of ``values`` / ``top`` on the project's error ramp
-    (:func:`geoscaler.figures.colormap`), grey where ``mask`` is False (``top``: the largest
+    (:func:`geoscaler.report.figures.colormap`), grey where ``mask`` is False (``top``: the largest
     value by default)."""
     top = float(values[mask].max()) if top is None and mask.any() else (top or 1.0)
     rgb = colormap(values / max(top, 1e-12))

@@ -27,16 +27,16 @@ from pathlib import Path
 
 import torch
 
-from geoscaler.cameras import validation_cameras
 from geoscaler.color import texture_to_linear
-from geoscaler.filters import lanczos, reference_textures
 from geoscaler.io import load_mesh
-from geoscaler.losses import view_loss
 from geoscaler.mesh import TexturedMesh
+from geoscaler.optim.losses import view_loss
 from geoscaler.procedural import demo_mesh
-from geoscaler.render import Renderer, resolve_device
-from geoscaler.texture import MipTexture
-from geoscaler.views import ViewCache, ViewSet
+from geoscaler.render.cameras import validation_cameras
+from geoscaler.render.renderer import Renderer, resolve_device
+from geoscaler.render.texture import MipTexture
+from geoscaler.render.views import ViewCache, ViewSet
+from geoscaler.resize.filters import lanczos, reference_textures
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 DEFAULT_SCANS = ["ycb_lego_duplo_a/textured.obj", "ycb_chain/textured.obj"]

@@ -35,15 +35,15 @@ import sys
 import time
 from pathlib import Path
 
-from geoscaler.bench import find_meshes
-from geoscaler.cameras import view_set_cameras
-from geoscaler.downsampling import product_evaluation
-from geoscaler.filters import bicubic, lanczos, output_sizes, reference_textures
 from geoscaler.io import load_mesh
-from geoscaler.metrics import mean_metrics
+from geoscaler.pipeline.downsampling import product_evaluation
 from geoscaler.protocol import PROTOCOL_EVALUATION
-from geoscaler.render import Renderer
-from geoscaler.views import ViewCache, ViewSet
+from geoscaler.render.cameras import view_set_cameras
+from geoscaler.render.metrics import mean_metrics
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.views import ViewCache, ViewSet
+from geoscaler.report.bench import find_meshes
+from geoscaler.resize.filters import bicubic, lanczos, output_sizes, reference_textures
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 BUSY_LOOP = "while True: pass"

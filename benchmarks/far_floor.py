@@ -26,21 +26,21 @@ import json
 import numpy as np
 import torch
 
-from geoscaler.cameras import view_set_cameras
 from geoscaler.color import linear_to_texture, texture_to_linear
-from geoscaler.downsampling import product_evaluation
-from geoscaler.filters import bicubic, lanczos, output_sizes, reference_textures
 from geoscaler.io import load_mesh
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods.direct import DEFAULT_CONFIG, lanczos_texel_model
-from geoscaler.metrics import mean_metrics
-from geoscaler.optimize import OptimizeConfig, optimize
+from geoscaler.optim.loop import OptimizeConfig, optimize
+from geoscaler.optim.validation import Validation, validation_view_sets
+from geoscaler.pipeline.downsampling import product_evaluation
 from geoscaler.process import configure_process
 from geoscaler.protocol import PROTOCOL_EVALUATION
-from geoscaler.render import Renderer
-from geoscaler.texture import build_mip_chain
-from geoscaler.validation import Validation, validation_view_sets
-from geoscaler.views import ViewCache, ViewSet
+from geoscaler.render.cameras import view_set_cameras
+from geoscaler.render.metrics import mean_metrics
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.texture import build_mip_chain
+from geoscaler.render.views import ViewCache, ViewSet
+from geoscaler.resize.filters import bicubic, lanczos, output_sizes, reference_textures
 
 
 def exact_first_level(codes: np.ndarray, original: list[torch.Tensor], scale: int) -> np.ndarray:

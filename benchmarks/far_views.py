@@ -20,18 +20,18 @@ from pathlib import Path
 
 import numpy as np
 
-from geoscaler.cameras import view_set_cameras
-from geoscaler.downsampling import product_evaluation
-from geoscaler.filters import bicubic
 from geoscaler.io import load_mesh
 from geoscaler.methods.direct import DEFAULT_CONFIG
 from geoscaler.methods.learned import loop_config
 from geoscaler.methods.registry import MethodOptions, RunContext, output_sizes_for
 from geoscaler.methods.repacked import baked_maps, plan_layout
-from geoscaler.metrics import psnr_fg
+from geoscaler.pipeline.downsampling import product_evaluation
 from geoscaler.protocol import PROTOCOL_EVALUATION
-from geoscaler.render import Renderer
-from geoscaler.sizes import SizeRule
+from geoscaler.render.cameras import view_set_cameras
+from geoscaler.render.metrics import psnr_fg
+from geoscaler.render.renderer import Renderer
+from geoscaler.resize.filters import bicubic
+from geoscaler.resize.sizes import SizeRule
 
 
 def mean_psnr(renderer: Renderer, views: list, textures: list, uvs=None) -> float:

@@ -2,7 +2,7 @@
 
 For each mesh, the training pool (``--pool`` cameras over the loop's training range) and 20 views of
 the protocol's Q (every third) are cached first, so that only the steps differ. Then the loop
-(:func:`geoscaler.optimize.optimize`, no time budget, no backtracking) runs N steps for each
+(:func:`geoscaler.optim.loop.optimize`, no time budget, no backtracking) runs N steps for each
 setting and N, from the same Lanczos start, and the candidate after its last step is scored on
 those Q views, 8-bit as it ships; printed as the gain over bicubic in dB.
 
@@ -21,18 +21,18 @@ import sys
 import time
 from pathlib import Path
 
-from geoscaler.bench import find_meshes
-from geoscaler.cameras import sample_training_cameras, view_set_cameras
-from geoscaler.filters import output_sizes
 from geoscaler.io import load_mesh
 from geoscaler.methods import run_method
 from geoscaler.methods.direct import DEFAULT_CONFIG, lanczos_texel_model
 from geoscaler.methods.registry import RunContext
-from geoscaler.optimize import TRAINING_RANGES, OptimizeConfig, optimize
+from geoscaler.optim.loop import TRAINING_RANGES, OptimizeConfig, optimize
+from geoscaler.optim.validation import Validation
 from geoscaler.protocol import PROTOCOL_EVALUATION
-from geoscaler.render import Renderer
-from geoscaler.validation import Validation
-from geoscaler.views import ViewSet, training_views
+from geoscaler.render.cameras import sample_training_cameras, view_set_cameras
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.views import ViewSet, training_views
+from geoscaler.report.bench import find_meshes
+from geoscaler.resize.filters import output_sizes
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 SETTINGS = {

@@ -28,11 +28,11 @@ def main() -> None:
     from conftest import development_meshes
 
     from geoscaler.app.gl_renderer import GLRenderer, headless_context
-    from geoscaler.cameras import validation_cameras
     from geoscaler.io import load_mesh
-    from geoscaler.metrics import psnr_fg
     from geoscaler.procedural import demo_mesh
-    from geoscaler.render import Renderer
+    from geoscaler.render.cameras import validation_cameras
+    from geoscaler.render.metrics import psnr_fg
+    from geoscaler.render.renderer import Renderer
 
     ctx = headless_context()
     print(f"GL: {ctx.info['GL_RENDERER']}; views {args.views} at distance {args.distance}")

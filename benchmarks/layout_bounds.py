@@ -31,16 +31,16 @@ from pathlib import Path
 
 import numpy as np
 
-from geoscaler.atlas import Atlas, chart_boxes, planned_scales, uv_areas, weighted_gain
-from geoscaler.bench import find_meshes
 from geoscaler.io import load_mesh
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods import MethodOptions, RunContext
 from geoscaler.methods.direct import DEFAULT_CONFIG
 from geoscaler.methods.learned import loop_config
 from geoscaler.methods.repacked import plan_layout
-from geoscaler.render import Renderer
-from geoscaler.sizes import SizeRule
+from geoscaler.render.renderer import Renderer
+from geoscaler.report.bench import find_meshes
+from geoscaler.resize.sizes import SizeRule
+from geoscaler.uv.atlas import Atlas, chart_boxes, planned_scales, uv_areas, weighted_gain
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 DB_PER_HALVING = 5.0

@@ -1,7 +1,8 @@
 """Repacking the atlas (issue 17): bicubic, `direct` on the mesh's own UVs, the bake alone on
 the new layout, and repack + `direct`, per development mesh and scale, protocol 1.
 
-Every method runs through the job's own comparison (`geoscaler.job.compare_mesh`), as `geoscaler
+Every method runs through the job's own comparison (`geoscaler.pipeline.job.compare_mesh`), as
+`geoscaler
 bench` runs it: the same cached views, validation and scoring, references always the original
 maps on the original UVs, every learned method under the same time budget. The bake alone is
 registered here as a filter (it is what repack + `direct` starts from, not validated); the
@@ -29,18 +30,18 @@ from pathlib import Path
 
 import numpy as np
 
-from geoscaler.bench import find_meshes
-from geoscaler.downsampling import product_evaluation
 from geoscaler.io import load_mesh
-from geoscaler.job import compare_mesh
 from geoscaler.methods import MethodOptions, MethodResult, RunContext
 from geoscaler.methods.direct import DEFAULT_CONFIG
 from geoscaler.methods.learned import loop_config
 from geoscaler.methods.registry import get_method, output_sizes_for, register
 from geoscaler.methods.repacked import baked_maps, plan_layout
+from geoscaler.pipeline.downsampling import product_evaluation
+from geoscaler.pipeline.job import compare_mesh
 from geoscaler.protocol import PROTOCOL_EVALUATION
-from geoscaler.render import Renderer
-from geoscaler.sizes import SizeRule
+from geoscaler.render.renderer import Renderer
+from geoscaler.report.bench import find_meshes
+from geoscaler.resize.sizes import SizeRule
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 METHODS = ["bicubic", "direct", "bake", "repack", "auto"]
@@ -71,7 +72,7 @@ def register_methods() -> None:
 def mesh_rows(
     entry, scales, distances, methods, budget: float, device: str, product: bool = False
 ) -> list[dict]:
-    """The rows of one mesh (:func:`geoscaler.bench.find_meshes`' entry), one per scale and
+    """The rows of one mesh (:func:`geoscaler.report.bench.find_meshes`' entry), one per scale and
     view set; ``product``: sizes and references as `geoscaler downsample` has them (the
     original at full resolution, not the protocol's 2048 cap)."""
     mesh = load_mesh(entry.path)

@@ -1,5 +1,5 @@
 """Ablation of the training renderer (issue 19): the same methods trained through the exact
-renderer and through the paper's soft rasteriser (:mod:`geoscaler.soft`), every result scored
+renderer and through the paper's soft rasteriser (:mod:`geoscaler.render.soft`), every result scored
 by the exact renderer, as a GPU shows it (protocol 1: Q at 2.4, near 1.5, far 4.0).
 
 Each learned run is scored twice, 8-bit, never replaced by a filter: as the method returns it
@@ -7,7 +7,8 @@ Each learned run is scored twice, 8-bit, never replaced by a filter: as the meth
 as its last step left it (``<method> (last)``, gutters filled as the loop fills them): the
 paper keeps the last state, and only that one says what training through the soft renderer
 alone does. The ``shipped`` column says what the job would ship
-(:func:`geoscaler.job.no_worse_than_filters`). Bicubic and Lanczos are scored beside them; the
+(:func:`geoscaler.pipeline.job.no_worse_than_filters`). Bicubic and Lanczos are scored beside them;
+the
 gain is PSNR-fg over bicubic's on the same mesh, scale and set.
 
 Usage:
@@ -35,16 +36,15 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-from geoscaler.adamw import AdamW
-from geoscaler.bench import MeshEntry, find_meshes
-from geoscaler.cameras import sample_training_cameras, spread_order, view_set_cameras
 from geoscaler.color import linear_to_texture, texture_to_linear
-from geoscaler.filters import lanczos, output_sizes, reference_textures
 from geoscaler.io import load_mesh
-from geoscaler.job import no_worse_than_filters
 from geoscaler.methods import MethodOptions, MethodResult, RunContext, run_method
 from geoscaler.methods.direct import TexelModel
-from geoscaler.optimize import TRAINING_RANGES, OptimizeConfig, finish, train_step
+from geoscaler.optim.adamw import AdamW
+from geoscaler.optim.loop import TRAINING_RANGES, OptimizeConfig, finish, train_step
+from geoscaler.optim.validation import Validation, validation_view_sets
+from geoscaler.pipeline.job import no_worse_than_filters
+from geoscaler.pipeline.rows import protocol_row
 from geoscaler.protocol import (
     FAR_DISTANCE,
     NEAR_DISTANCE,
@@ -52,12 +52,13 @@ from geoscaler.protocol import (
     VALIDATION_DISTANCE,
     Evaluation,
 )
-from geoscaler.render import Renderer, resolve_device
-from geoscaler.rows import protocol_row
-from geoscaler.soft import SoftSettings
-from geoscaler.uvmaps import reachable_masks
-from geoscaler.validation import Validation, validation_view_sets
-from geoscaler.views import ViewCache, ViewSet, training_views
+from geoscaler.render.cameras import sample_training_cameras, spread_order, view_set_cameras
+from geoscaler.render.renderer import Renderer, resolve_device
+from geoscaler.render.soft import SoftSettings
+from geoscaler.render.views import ViewCache, ViewSet, training_views
+from geoscaler.report.bench import MeshEntry, find_meshes
+from geoscaler.resize.filters import lanczos, output_sizes, reference_textures
+from geoscaler.uv.uvmaps import reachable_masks
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 DISTANCES = (VALIDATION_DISTANCE, NEAR_DISTANCE, FAR_DISTANCE)

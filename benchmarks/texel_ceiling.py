@@ -27,20 +27,20 @@ from pathlib import Path
 
 import torch
 
-from geoscaler.bench import find_meshes
-from geoscaler.cameras import validation_cameras
 from geoscaler.color import linear_to_texture
-from geoscaler.downsampling import product_evaluation
-from geoscaler.filters import output_sizes
 from geoscaler.io import load_mesh
 from geoscaler.methods import run_method
 from geoscaler.methods.direct import lanczos_texel_model
 from geoscaler.methods.registry import RunContext
-from geoscaler.optimize import OptimizeConfig, optimize
+from geoscaler.optim.loop import OptimizeConfig, optimize
+from geoscaler.optim.validation import Validation
+from geoscaler.pipeline.downsampling import product_evaluation
 from geoscaler.protocol import PROTOCOL_EVALUATION
-from geoscaler.render import Renderer, resolve_device
-from geoscaler.validation import Validation
-from geoscaler.views import ViewCache, ViewSet
+from geoscaler.render.cameras import validation_cameras
+from geoscaler.render.renderer import Renderer, resolve_device
+from geoscaler.render.views import ViewCache, ViewSet
+from geoscaler.report.bench import find_meshes
+from geoscaler.resize.filters import output_sizes
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

@@ -25,16 +25,16 @@ import time
 
 import torch
 
-from geoscaler.adamw import AdamW
-from geoscaler.arguments import check_rules
-from geoscaler.cameras import sample_training_cameras
-from geoscaler.filters import output_sizes
 from geoscaler.io import load_mesh
 from geoscaler.methods.direct import DEFAULT_CONFIG, lanczos_texel_model
-from geoscaler.optimize import TRAINING_RANGES, OptimizeConfig, train_step
+from geoscaler.optim.adamw import AdamW
+from geoscaler.optim.loop import TRAINING_RANGES, OptimizeConfig, train_step
+from geoscaler.pipeline.arguments import check_rules
 from geoscaler.process import configure_process
-from geoscaler.render import Renderer
-from geoscaler.views import training_views
+from geoscaler.render.cameras import sample_training_cameras
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.views import training_views
+from geoscaler.resize.filters import output_sizes
 
 
 def step_seconds(

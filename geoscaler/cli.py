@@ -15,7 +15,7 @@ from geoscaler.clock import WALL_CLOCK
 from geoscaler.errors import GeoscalerError
 from geoscaler.process import configure_process, exit_status_kept
 from geoscaler.protocol import PROTOCOL, PROTOCOL_EVALUATION, Evaluation
-from geoscaler.uvmodes import add_uv_argument
+from geoscaler.uv.uvmodes import add_uv_argument
 
 DEFAULT_DEMO_DIR = Path("assets")
 
@@ -23,7 +23,7 @@ DEFAULT_DEMO_DIR = Path("assets")
 def mesh_info(path: Path) -> dict:
     """Facts about a mesh file: sizes, materials, textures, UV charts and texture coverage."""
     from geoscaler.io import load_mesh
-    from geoscaler.uvmaps import chart_labels, uv_coverage
+    from geoscaler.uv.uvmaps import chart_labels, uv_coverage
 
     mesh = load_mesh(path)
     materials = []
@@ -85,11 +85,11 @@ def cmd_info(args: argparse.Namespace) -> None:
 
 
 def cmd_render(args: argparse.Namespace) -> None:
-    from geoscaler.arguments import check_distance, check_view
-    from geoscaler.cameras import validation_cameras
     from geoscaler.io import check_output, load_mesh, save_png
+    from geoscaler.pipeline.arguments import check_distance, check_view
     from geoscaler.protocol import VALIDATION_DISTANCE
-    from geoscaler.render import Renderer, image_to_uint8
+    from geoscaler.render.cameras import validation_cameras
+    from geoscaler.render.renderer import Renderer, image_to_uint8
 
     view = check_view(args.view)
     distance = VALIDATION_DISTANCE if args.distance is None else check_distance(args.distance)
@@ -109,8 +109,9 @@ def cmd_render(args: argparse.Namespace) -> None:
 
 def job_settings(args: argparse.Namespace) -> dict[str, Any]:
     """The checked settings of a downsampling job from :func:`add_job_arguments`' options:
-    the keyword arguments of :func:`geoscaler.downsampling.prepare` but the mesh and output."""
-    from geoscaler.arguments import (
+    the keyword arguments of :func:`geoscaler.pipeline.downsampling.prepare` but the mesh and
+    output."""
+    from geoscaler.pipeline.arguments import (
         DEFAULT_TIME_BUDGET,
         check_image_format,
         check_method,
@@ -145,8 +146,8 @@ def job_settings(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def cmd_downsample(args: argparse.Namespace) -> None:
-    from geoscaler.console import command_started_at
-    from geoscaler.downsampling import prepare
+    from geoscaler.pipeline.downsampling import prepare
+    from geoscaler.report.console import command_started_at
 
     settings = job_settings(args)
     job = prepare(
@@ -156,14 +157,14 @@ def cmd_downsample(args: argparse.Namespace) -> None:
         started_at=command_started_at(args.called_at),  # the whole command's wall clock
         **settings,
     )
-    from geoscaler.runner import downsample_and_report
+    from geoscaler.report.runner import downsample_and_report
 
     downsample_and_report(job, args.evaluation)
 
 
 def cmd_demo(args: argparse.Namespace) -> None:
-    from geoscaler.console import command_started_at
-    from geoscaler.runner import demo
+    from geoscaler.report.console import command_started_at
+    from geoscaler.report.runner import demo
 
     demo(
         args.out,
@@ -192,12 +193,12 @@ def cmd_compare(args: argparse.Namespace) -> None:
     """``geoscaler compare``: compare methods on one mesh, print a table or JSON, write files."""
     from tqdm import tqdm
 
-    from geoscaler.arguments import comparison_settings
-    from geoscaler.console import CompareProgress
     from geoscaler.io import load_mesh, save_png, write_atomically
-    from geoscaler.job import compare_mesh, prepare_out_dir
-    from geoscaler.render import Renderer
-    from geoscaler.report import (
+    from geoscaler.pipeline.arguments import comparison_settings
+    from geoscaler.pipeline.job import compare_mesh, prepare_out_dir
+    from geoscaler.render.renderer import Renderer
+    from geoscaler.report.console import CompareProgress
+    from geoscaler.report.documents import (
         comparison_json,
         comparison_picture,
         describe_device,
@@ -242,7 +243,7 @@ def cmd_compare(args: argparse.Namespace) -> None:
 
 
 def cmd_bench(args: argparse.Namespace) -> None:
-    from geoscaler.bench import command
+    from geoscaler.report.bench import command
 
     command(args)
 
@@ -271,7 +272,8 @@ def _add_network_arguments(parser: argparse.ArgumentParser, variants: str) -> No
         choices=["exact", "soft"],
         default="exact",
         help="what learned methods train through: exact (default: the renderer a GPU is) or "
-        "soft (the paper's soft rasteriser, geoscaler.soft); validation and scores are exact",
+        "soft (the paper's soft rasteriser, geoscaler.render.soft); validation and scores are "
+        "exact",
     )
     add_uv_argument(parser)
     parser.add_argument("--variant", help=variants)
@@ -383,8 +385,8 @@ def add_job_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _class_value(text: str) -> str:
     """argparse type of ``--scale`` and ``--max-size``: ``N`` or ``CLASS=N`` (the values are
-    checked with the other errors, :func:`geoscaler.arguments.check_size_plan`)."""
-    from geoscaler.sizes import parse_class_value
+    checked with the other errors, :func:`geoscaler.pipeline.arguments.check_size_plan`)."""
+    from geoscaler.resize.sizes import parse_class_value
 
     try:
         parse_class_value(text)

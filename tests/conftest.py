@@ -39,7 +39,7 @@ evaluation=ONE_VIEW)``; the real command: 60 views, 512 pixels)."""
 def small_renderer(mesh, views=(0,), device=None):
     """A renderer of protocol ``views`` at 128 pixels: the quick checks' evaluation (the
     protocol renders all 60 views at 512 pixels, 16 times the pixels of each)."""
-    from geoscaler.render import Renderer
+    from geoscaler.render.renderer import Renderer
 
     return Renderer(mesh, device, Evaluation.quick(views))
 

@@ -5,7 +5,7 @@ import sys
 
 import torch
 
-from geoscaler.adamw import AdamW
+from geoscaler.optim.adamw import AdamW
 
 
 def quadratic_steps(optimizer, parameters, lrs):
@@ -49,7 +49,7 @@ def test_a_parameter_without_gradient_is_left_alone():
 
 def test_using_it_does_not_import_dynamo():
     code = (
-        "import sys, torch; from geoscaler.adamw import AdamW;"
+        "import sys, torch; from geoscaler.optim.adamw import AdamW;"
         "p = torch.zeros(2, requires_grad=True); o = AdamW([p]);"
         "p.sum().backward(); o.step(); print('torch._dynamo' in sys.modules)"
     )

@@ -284,10 +284,10 @@ def test_the_live_candidate_carries_the_uvs_of_a_warping_method(small_demo):
 def test_the_run_settings_default_to_the_clis(small_demo):
     """Steps: the method's own default; time budget: the CLI's 60 s; None is no limit."""
     training = import_app_module("training")
-    from geoscaler.arguments import DEFAULT_TIME_BUDGET
     from geoscaler.methods import default_steps
     from geoscaler.methods.direct import DEFAULT_CONFIG
     from geoscaler.methods.network import DEFAULT_PRESET, PRESETS
+    from geoscaler.pipeline.arguments import DEFAULT_TIME_BUDGET
 
     settings = training.TrainingSettings(evaluation=ONE_SMALL_VIEW)
     assert settings.time_budget == DEFAULT_TIME_BUDGET == 60.0

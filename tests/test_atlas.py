@@ -11,9 +11,19 @@ import torch
 from mesh_support import ribbon_mesh
 from PIL import Image
 
-from geoscaler import atlas as atlas_module
-from geoscaler import packing
-from geoscaler.atlas import (
+from geoscaler.clock import Budget, ManualClock
+from geoscaler.color import srgb_to_linear
+from geoscaler.mesh import Material, TexturedMesh, compute_vertex_normals
+from geoscaler.render.cameras import validation_cameras
+from geoscaler.render.encoded import EncodedMipTexture
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.texture import MipTexture, UVFootprint
+from geoscaler.render.views import ViewSet
+from geoscaler.resize.filters import resize_float
+from geoscaler.resize.sizes import COLOR, DATA, NORMAL
+from geoscaler.uv import atlas as atlas_module
+from geoscaler.uv import packing
+from geoscaler.uv.atlas import (
     ALIGNMENT,
     CUT_GAIN,
     alignment_for,
@@ -23,14 +33,8 @@ from geoscaler.atlas import (
     planned_scales,
     repack,
 )
-from geoscaler.bake import ChartMaps, bake, decode, decoding, encode
-from geoscaler.cameras import validation_cameras
-from geoscaler.clock import Budget, ManualClock
-from geoscaler.color import srgb_to_linear
-from geoscaler.encoded import EncodedMipTexture
-from geoscaler.filters import resize_float
-from geoscaler.mesh import Material, TexturedMesh, compute_vertex_normals
-from geoscaler.packing import (
+from geoscaler.uv.bake import ChartMaps, bake, decode, decoding, encode
+from geoscaler.uv.packing import (
     Charts,
     PackingError,
     chart_texels,
@@ -38,11 +42,7 @@ from geoscaler.packing import (
     pack,
     padding_violations,
 )
-from geoscaler.render import Renderer
-from geoscaler.sizes import COLOR, DATA, NORMAL
-from geoscaler.texture import MipTexture, UVFootprint
-from geoscaler.uvmaps import chart_labels, cut_charts
-from geoscaler.views import ViewSet
+from geoscaler.uv.uvmaps import chart_labels, cut_charts
 
 SIZE = 64
 

@@ -15,11 +15,11 @@ import torch
 from geoscaler.cli import main
 from geoscaler.errors import GeoscalerError
 from geoscaler.io import load_mesh, save_mesh
-from geoscaler.job import compare_mesh
 from geoscaler.methods import MethodOptions, run_method
 from geoscaler.methods.registry import RunContext, get_method, register, unregister
+from geoscaler.pipeline.job import compare_mesh
 from geoscaler.protocol import Evaluation
-from geoscaler.uvmaps import chart_labels
+from geoscaler.uv.uvmaps import chart_labels
 
 sys.path.insert(0, str(Path(__file__).parent))
 from mesh_support import ribbon_mesh  # noqa: E402
@@ -39,7 +39,7 @@ def cube():
 
 
 def test_repack_returns_new_uvs_of_every_face_corner_and_its_layout(cube):
-    from geoscaler.render import Renderer
+    from geoscaler.render.renderer import Renderer
 
     renderer = Renderer(cube, "cpu", QUICK)
     result = run_method("direct", cube, 4, options("repack"), RunContext(renderer))
@@ -52,7 +52,7 @@ def test_repack_returns_new_uvs_of_every_face_corner_and_its_layout(cube):
 
 
 def raced(cube, steps: int, on_event=None):
-    from geoscaler.render import Renderer
+    from geoscaler.render.renderer import Renderer
 
     renderer = Renderer(cube, "cpu", QUICK)
     context = RunContext(renderer, on_event=on_event)
@@ -80,7 +80,7 @@ def test_a_new_layout_below_the_own_one_on_any_set_stays_out_of_the_race():
 
     from geoscaler.methods.registry import MethodResult
     from geoscaler.methods.repacked import _winner
-    from geoscaler.validation import Scores
+    from geoscaler.optim.validation import Scores
 
     def trial(q: float, far: list[float]) -> MethodResult:
         per_view = {"Q": np.array([q, q + 1, q - 1]), "far": np.array(far)}
@@ -110,7 +110,7 @@ def test_a_new_layout_below_the_own_one_on_any_set_stays_out_of_the_race():
 def minifying(uv: str, steps: int):
     """``direct`` at 4x on a cube whose 256-texel output even the far views minify (64 pixels
     a side: a far sample spans more than a texel), so its charts are aligned."""
-    from geoscaler.render import Renderer
+    from geoscaler.render.renderer import Renderer
 
     cube = cube_mesh(texture_size=1024)
     renderer = Renderer(cube, "cpu", Evaluation.quick((0, 20, 40), image_size=64))
@@ -167,8 +167,8 @@ def test_the_race_reports_one_run_of_steps_and_one_end(cube):
 
 def test_a_new_layouts_validation_prices_the_taps_it_has_still_to_find(cube):
     from geoscaler.methods.repacked import LayoutValidation
-    from geoscaler.render import Renderer
-    from geoscaler.validation import Validation, validation_view_sets
+    from geoscaler.optim.validation import Validation, validation_view_sets
+    from geoscaler.render.renderer import Renderer
 
     renderer = Renderer(cube, "cpu", QUICK)
     base = Validation(validation_view_sets(renderer, guard_views=2), [(64, 64)])
@@ -188,7 +188,7 @@ def test_a_new_layouts_validation_prices_the_taps_it_has_still_to_find(cube):
 
 
 def test_a_budget_without_time_to_plan_and_bake_keeps_the_own_layout(cube):
-    from geoscaler.render import Renderer
+    from geoscaler.render.renderer import Renderer
 
     context = RunContext(Renderer(cube, "cpu", QUICK), time_budget=0.05)
     result = run_method("direct", cube, 4, options("auto"), context)
@@ -220,7 +220,7 @@ def test_the_bake_is_priced_at_a_validation_views_cost_per_sample():
 
 
 def test_the_job_scores_repack_beside_direct_on_the_same_views(cube):
-    from geoscaler.render import Renderer
+    from geoscaler.render.renderer import Renderer
 
     direct = get_method("direct")
     register("direct-repack-test", direct.run, learned=True, settings={"uv": "repack"})
@@ -333,7 +333,7 @@ def test_repack_refuses_the_soft_renderer(cube):
 
 
 def test_the_report_says_what_happened_to_the_layout():
-    from geoscaler.report import _layout_lines
+    from geoscaler.report.documents import _layout_lines
 
     layout = {"charts": 6, "k": 2.1, "k_area": 1.9, "padding_texels": 2, "kept": {"b": "why"}}
     repacked = {"uv": "repack", "layout": layout, "layout_used": "repack", "shipped": "direct"}

@@ -11,7 +11,11 @@ import pytest
 from conftest import ONE_VIEW
 from PIL import Image
 
-from geoscaler.bench import (
+from geoscaler.cli import build_parser, main
+from geoscaler.errors import GeoscalerError
+from geoscaler.io import save_mesh
+from geoscaler.procedural import demo_mesh
+from geoscaler.report.bench import (
     CSV_COLUMNS,
     METRIC_TITLES,
     command_line,
@@ -19,10 +23,6 @@ from geoscaler.bench import (
     paper_table,
     summarize,
 )
-from geoscaler.cli import build_parser, main
-from geoscaler.errors import GeoscalerError
-from geoscaler.io import save_mesh
-from geoscaler.procedural import demo_mesh
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from geoscaler.cameras import (
+from geoscaler.render.cameras import (
     Camera,
     fibonacci_directions,
     sample_training_cameras,

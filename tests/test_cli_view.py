@@ -23,8 +23,9 @@ def test_view_of_a_missing_file_is_a_clear_error(tmp_path, capsys):
 def test_the_library_imports_without_the_app_or_a_display():
     code = (
         "import sys; sys.modules['moderngl'] = None; sys.modules['imgui_bundle'] = None\n"
-        "import geoscaler.cli, geoscaler.console, geoscaler.job, geoscaler.render\n"
-        "import geoscaler.report\n"
+        "import geoscaler.cli, geoscaler.report.console, geoscaler.pipeline.job\n"
+        "import geoscaler.render.renderer\n"
+        "import geoscaler.report.documents\n"
         "assert geoscaler.cli.main(['view']) == 2\n"
     )
     result = subprocess.run(

@@ -14,16 +14,22 @@ from PIL import Image
 
 from geoscaler.cli import main
 from geoscaler.errors import GeoscalerError
-from geoscaler.figures import colormap
-from geoscaler.filters import reference_textures
 from geoscaler.io import save_mesh
-from geoscaler.job import JobObserver, compare_mesh
 from geoscaler.methods import MethodOptions, MethodResult, get_method, registry
-from geoscaler.metrics import evaluate, ssim_fg, ssim_full
+from geoscaler.pipeline.job import JobObserver, compare_mesh
+from geoscaler.pipeline.rows import ROW_KEYS
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import BYTES_PER_TEXEL, Evaluation
-from geoscaler.report import comparison_json, comparison_picture, dumps, format_table, pick_views
-from geoscaler.rows import ROW_KEYS
+from geoscaler.render.metrics import evaluate, ssim_fg, ssim_full
+from geoscaler.report.documents import (
+    comparison_json,
+    comparison_picture,
+    dumps,
+    format_table,
+    pick_views,
+)
+from geoscaler.report.figures import colormap
+from geoscaler.resize.filters import reference_textures
 
 VIEWS = (0, 31)  # two protocol views keep the tests fast; the CLI always scores all 60
 
@@ -181,7 +187,7 @@ def test_colormap_runs_dark_to_bright():
 )
 def test_scoring_shortcut_on_black_background_is_exact(rows, cols):
     """evaluate() computes SSIM only near non-black pixels (renders of a mesh on black): its
-    means must equal the plain full-map SSIM of geoscaler.metrics."""
+    means must equal the plain full-map SSIM of geoscaler.render.metrics."""
     generator = torch.Generator().manual_seed(0)
     shape = (3, 64, 72, 3)
     reference = torch.rand(shape, generator=generator, dtype=torch.float64)

@@ -17,14 +17,14 @@ import pytest
 from PIL import Image
 
 import geoscaler.cli
-import geoscaler.downsampling
-import geoscaler.runner
-from geoscaler.console import DownsampleProgress
-from geoscaler.filters import lanczos
+import geoscaler.pipeline.downsampling
+import geoscaler.report.runner
 from geoscaler.io import load_mesh, paths, save_mesh
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
-from geoscaler.runner import demo
+from geoscaler.report.console import DownsampleProgress
+from geoscaler.report.runner import demo
+from geoscaler.resize.filters import lanczos
 
 QUICK_VIEWS = (0, 20, 40)
 QUICK_EVALUATION = Evaluation.quick(QUICK_VIEWS)
@@ -67,7 +67,7 @@ def direct_run(glb, tmp_path_factory):
     out_dir = tmp_path_factory.mktemp("out")
     before = folder_bytes(glb.parent)
     produced = {}
-    real_export = geoscaler.downsampling.export
+    real_export = geoscaler.pipeline.downsampling.export
 
     def spy(mesh, result, output, *args, **kwargs):
         produced["textures"] = [None if t is None else t.copy() for t in result.textures]
@@ -75,7 +75,7 @@ def direct_run(glb, tmp_path_factory):
         return real_export(mesh, result, output, *args, **kwargs)
 
     with pytest.MonkeyPatch.context() as patch:  # a spy: what the job hands the writer
-        patch.setattr(geoscaler.downsampling, "export", spy)
+        patch.setattr(geoscaler.pipeline.downsampling, "export", spy)
         argv = ["downsample", str(glb), "--scale", "4", "-o", str(out_dir / "small.glb")]
         argv += ["--steps", "20", "--device", "cpu", "--report", str(out_dir / "report.json")]
         status = main(argv)
@@ -160,7 +160,7 @@ def no_work(monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("heavy work started before the arguments were checked")
 
-    monkeypatch.setattr(geoscaler.runner, "downsample_and_report", refuse)
+    monkeypatch.setattr(geoscaler.report.runner, "downsample_and_report", refuse)
 
 
 @pytest.mark.parametrize(

@@ -1,4 +1,4 @@
-"""Specification of geoscaler.filters: the protocol's baseline downsamplers."""
+"""Specification of geoscaler.resize.filters: the protocol's baseline downsamplers."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 from PIL import Image
 
 from geoscaler.errors import GeoscalerError
-from geoscaler.filters import (
+from geoscaler.resize.filters import (
     BASELINES,
     _box_float,
     _pbd_float,

@@ -12,14 +12,14 @@ import torch
 from app_support import gl_context, import_app_module
 from conftest import mesh_params
 
-from geoscaler.cameras import Camera, validation_cameras
 from geoscaler.color import texture_to_linear
-from geoscaler.filters import reference_textures
 from geoscaler.io import load_mesh
-from geoscaler.metrics import psnr_fg
 from geoscaler.procedural import demo_mesh
-from geoscaler.render import Renderer
-from geoscaler.texture import MipTexture
+from geoscaler.render.cameras import Camera, validation_cameras
+from geoscaler.render.metrics import psnr_fg
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.texture import MipTexture
+from geoscaler.resize.filters import reference_textures
 
 AGREEMENT_DB = 40.0
 

@@ -7,18 +7,18 @@ import numpy as np
 import pytest
 import torch
 
-from geoscaler.cameras import Camera, sample_extent
 from geoscaler.color import texture_to_linear
-from geoscaler.filters import lanczos, output_sizes
 from geoscaler.mesh import Material, TexturedMesh, compute_vertex_normals, weld_points
 from geoscaler.methods.direct import TexelModel
-from geoscaler.optimize import OptimizeConfig, optimize
+from geoscaler.optim.loop import OptimizeConfig, optimize
+from geoscaler.optim.validation import Validation, validation_view_sets
 from geoscaler.protocol import Evaluation
-from geoscaler.render import Renderer
-from geoscaler.texture import build_mip_chain, fill_gutters
-from geoscaler.uvmaps import face_max_levels, reachable_masks, reachable_texels
-from geoscaler.validation import Validation, validation_view_sets
-from geoscaler.views import ViewCache, ViewSet
+from geoscaler.render.cameras import Camera, sample_extent
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.texture import build_mip_chain, fill_gutters
+from geoscaler.render.views import ViewCache, ViewSet
+from geoscaler.resize.filters import lanczos, output_sizes
+from geoscaler.uv.uvmaps import face_max_levels, reachable_masks, reachable_texels
 
 
 def quad(u_max: float = 1.0, texture_size: int = 64) -> TexturedMesh:

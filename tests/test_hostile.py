@@ -779,7 +779,7 @@ def test_a_downsample_whose_report_cannot_be_written_leaves_no_output(
 ):
     """The report is written after the mesh: when writing it fails, the mesh goes too."""
     import geoscaler.io
-    import geoscaler.runner
+    import geoscaler.report.runner
 
     folder, out = tmp_path / "in", tmp_path / "out"
     folder.mkdir()
@@ -794,7 +794,7 @@ def test_a_downsample_whose_report_cannot_be_written_leaves_no_output(
             raise geoscaler.io.atomic.GeoscalerError(f"{path}: writing it failed (disk full)")
         return real(path, write)
 
-    monkeypatch.setattr(geoscaler.runner, "write_atomically", full_disk)
+    monkeypatch.setattr(geoscaler.report.runner, "write_atomically", full_disk)
     argv = downsample("mesh.obj", "{out}/s.glb", "--report", "{out}/r.json")
     argv = [a.replace("{in}", str(folder)).replace("{out}", str(out)) for a in argv]
     assert run(argv) == 2

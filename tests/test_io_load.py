@@ -493,7 +493,7 @@ def test_trimesh_is_imported_only_when_an_obj_is_read(tmp_path: Path):
     probe = (
         "import sys\n"
         "from geoscaler.io import load_mesh\n"
-        "import geoscaler.runner\n"
+        "import geoscaler.report.runner\n"
         "load_mesh(sys.argv[1])\n"
         "print('trimesh' in sys.modules, end=' ')\n"
         "load_mesh(sys.argv[2])\n"

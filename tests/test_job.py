@@ -17,12 +17,12 @@ import pytest
 from geoscaler.cli import main
 from geoscaler.clock import WALL_CLOCK, ManualClock
 from geoscaler.io import save_mesh
-from geoscaler.job import compare_mesh, no_worse_than_filters
 from geoscaler.methods import MethodOptions, MethodResult, get_method, registry
+from geoscaler.optim.validation import Validation
+from geoscaler.pipeline.job import compare_mesh, no_worse_than_filters
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
-from geoscaler.render import Renderer
-from geoscaler.validation import Validation
+from geoscaler.render.renderer import Renderer
 
 ONE_VIEW_POOL = {"pool_views": 1, "views_per_step": 1, "validate_every": 1}
 

@@ -4,22 +4,22 @@ import pytest
 import torch
 from mesh_support import three_material_demo
 
-import geoscaler.optimize as optimize_module
-from geoscaler.cameras import validation_cameras
+import geoscaler.optim.loop as optimize_module
 from geoscaler.color import (
     linear_to_srgb,
     linear_to_srgb_slope,
     srgb_to_linear,
     srgb_to_linear_slope,
 )
-from geoscaler.majorize import curvature_bounds, majorized_step
 from geoscaler.methods.direct import TexelModel
-from geoscaler.optimize import OptimizeConfig, optimize
+from geoscaler.optim.loop import OptimizeConfig, optimize
+from geoscaler.optim.majorize import curvature_bounds, majorized_step
+from geoscaler.optim.validation import Validation, validation_view_sets
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
-from geoscaler.render import Renderer
-from geoscaler.validation import Validation, validation_view_sets
-from geoscaler.views import ViewCache, ViewSet
+from geoscaler.render.cameras import validation_cameras
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.views import ViewCache, ViewSet
 
 
 def test_the_slopes_are_the_derivatives_of_the_srgb_curves():

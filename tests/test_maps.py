@@ -1,4 +1,4 @@
-"""Specification of geoscaler.maps: every texture class resized as what it holds.
+"""Specification of geoscaler.resize.maps: every texture class resized as what it holds.
 
 Tolerances are those of 8-bit storage. A normal-map code ``q`` decodes to ``2 q / 255 - 1``,
 so rounding an exact vector to the nearest code moves each component by at most 1/255.
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from geoscaler import maps
 from geoscaler.errors import GeoscalerError
-from geoscaler.maps import (
+from geoscaler.resize import maps
+from geoscaler.resize.maps import (
     COLOR,
     DATA,
     METHOD_NAMES,

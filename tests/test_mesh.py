@@ -10,7 +10,6 @@ import pytest
 from mesh_support import TEXTURE, ribbon_mesh, two_material_mesh
 
 from geoscaler.errors import GeoscalerError
-from geoscaler.filters import box
 from geoscaler.mesh import (
     Material,
     TexturedMesh,
@@ -20,7 +19,8 @@ from geoscaler.mesh import (
     compute_vertex_normals,
     weld_points,
 )
-from geoscaler.uvmaps import uv_coverage
+from geoscaler.resize.filters import box
+from geoscaler.uv.uvmaps import uv_coverage
 
 
 def test_with_texture_returns_an_edited_copy():

@@ -1,4 +1,4 @@
-"""Specification of geoscaler.metrics: PSNR and SSIM as PROTOCOL.md defines them."""
+"""Specification of geoscaler.render.metrics: PSNR and SSIM as PROTOCOL.md defines them."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import torch
 from skimage.data import astronaut
 from skimage.metrics import structural_similarity
 
-from geoscaler.metrics import (
+from geoscaler.render.metrics import (
     METRIC_NAMES,
     SSIMLoss,
     evaluate,

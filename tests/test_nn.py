@@ -9,10 +9,7 @@ import pytest
 import torch
 from conftest import small_renderer
 
-from geoscaler.arguments import check_methods
-from geoscaler.cameras import validation_cameras
 from geoscaler.errors import GeoscalerError
-from geoscaler.filters import output_sizes
 from geoscaler.mesh import Material, TexturedMesh
 from geoscaler.methods import MethodOptions, RunContext, run_method
 from geoscaler.methods.network import NetworkModel, build_network
@@ -28,18 +25,21 @@ from geoscaler.nn.uvwarper import (
     warp_plane,
     warp_uvs,
 )
+from geoscaler.optim.validation import Validation, validation_view_sets
+from geoscaler.pipeline.arguments import check_methods
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
-from geoscaler.render import Renderer
-from geoscaler.texture import MipTexture
-from geoscaler.uvmaps import (
+from geoscaler.render.cameras import validation_cameras
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.texture import MipTexture
+from geoscaler.resize.filters import output_sizes
+from geoscaler.uv.uvmaps import (
     INPUT_CHANNELS,
     geometry_maps,
     mesh_graph,
     uv_raster,
     vertex_materials,
 )
-from geoscaler.validation import Validation, validation_view_sets
 
 CPU = torch.device("cpu")
 

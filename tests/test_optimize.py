@@ -9,26 +9,26 @@ import pytest
 import torch
 from mesh_support import three_material_demo
 
-from geoscaler.cameras import validation_cameras
 from geoscaler.clock import Budget, ManualClock
 from geoscaler.color import linear_to_srgb, linear_to_texture, texture_to_linear
-from geoscaler.events import Controller
-from geoscaler.filters import lanczos, output_sizes, reference_textures
-from geoscaler.losses import rendering_loss, view_loss
 from geoscaler.methods import MethodOptions, RunContext, run_method
 from geoscaler.methods.direct import TexelModel
-from geoscaler.optimize import (
+from geoscaler.optim.events import Controller
+from geoscaler.optim.loop import (
     FINISH_MARGIN,
     OptimizeConfig,
     _Best,
     optimize,
     train_step,
 )
+from geoscaler.optim.losses import rendering_loss, view_loss
+from geoscaler.optim.validation import Validation, validation_view_sets
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
-from geoscaler.render import Renderer
-from geoscaler.validation import Validation, validation_view_sets
-from geoscaler.views import ViewCache, ViewSet, training_views
+from geoscaler.render.cameras import validation_cameras
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.views import ViewCache, ViewSet, training_views
+from geoscaler.resize.filters import lanczos, output_sizes, reference_textures
 
 SCALE = 4
 

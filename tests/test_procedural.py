@@ -14,9 +14,9 @@ from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from geoscaler.packing import signed_areas
 from geoscaler.procedural import SCAN_COVERAGE, SCAN_DILATION, scan_mesh
-from geoscaler.uvmaps import chart_labels, uv_coverage
+from geoscaler.uv.packing import signed_areas
+from geoscaler.uv.uvmaps import chart_labels, uv_coverage
 
 
 @pytest.fixture(scope="module")

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import torch
 
-from geoscaler.cameras import Camera
-from geoscaler.raster import rasterize
+from geoscaler.render.cameras import Camera
+from geoscaler.render.raster import rasterize
 
 CAMERA = Camera((0.0, 0.0, 1.0), 2.4)
 TAN = math.tan(math.radians(22.5))

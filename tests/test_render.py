@@ -7,13 +7,13 @@ import pytest
 import torch
 from mesh_support import HALF, quad_mesh, three_material_demo
 
-from geoscaler.cameras import Camera, validation_cameras
 from geoscaler.color import linear_to_srgb, srgb_to_linear, texture_to_linear
-from geoscaler.encoded import EncodedMipTexture
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
-from geoscaler.render import Renderer
-from geoscaler.texture import MipTexture
+from geoscaler.render.cameras import Camera, validation_cameras
+from geoscaler.render.encoded import EncodedMipTexture
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.texture import MipTexture
 
 TAN = math.tan(math.radians(22.5))
 

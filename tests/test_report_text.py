@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from geoscaler.report import format_report
+from geoscaler.report.documents import format_report
 
 ROW = {
     "method": "direct", "scale": 4, "texture_size": "16x16", "views": 2, "distance": 2.4,

@@ -2,7 +2,7 @@
 
 import pytest
 
-from geoscaler.schedule import Schedule
+from geoscaler.optim.schedule import Schedule
 
 
 def test_learning_rate_warms_up_then_decays_with_the_steps_or_the_time_whichever_is_further():

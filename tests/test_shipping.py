@@ -9,13 +9,13 @@ import pytest
 from mesh_support import mesh_of
 
 from geoscaler.errors import GeoscalerError
-from geoscaler.maps import METHOD_NAMES
 from geoscaler.mesh import Material, SourceImage, TexturedMesh
 from geoscaler.methods import MethodOptions, RunContext, run_method
+from geoscaler.pipeline.shipping import ship_asset
 from geoscaler.protocol import Evaluation
-from geoscaler.render import Renderer
-from geoscaler.shipping import ship_asset
-from geoscaler.sizes import SizePlan, SizeRule, size_plan
+from geoscaler.render.renderer import Renderer
+from geoscaler.resize.maps import METHOD_NAMES
+from geoscaler.resize.sizes import SizePlan, SizeRule, size_plan
 
 RNG = np.random.default_rng(7)
 

@@ -2,10 +2,10 @@
 
 import pytest
 
-from geoscaler.arguments import check_image_format, check_size_plan
 from geoscaler.errors import GeoscalerError
-from geoscaler.filters import target_size
-from geoscaler.sizes import SizeRule, nearest_power_of_two, size_plan
+from geoscaler.pipeline.arguments import check_image_format, check_size_plan
+from geoscaler.resize.filters import target_size
+from geoscaler.resize.sizes import SizeRule, nearest_power_of_two, size_plan
 
 
 @pytest.mark.parametrize(

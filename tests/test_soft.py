@@ -1,4 +1,5 @@
-"""The paper's soft rasteriser (geoscaler.soft): SoftRas / PyTorch3D semantics on small analytic
+"""The paper's soft rasteriser (geoscaler.render.soft): SoftRas / PyTorch3D semantics on small
+analytic
 scenes, its gradients, its bounded-memory machinery against an untiled reference, and the
 training loop's soft option."""
 
@@ -9,16 +10,16 @@ import pytest
 import torch
 from mesh_support import quad_mesh, three_material_demo
 
-from geoscaler.cameras import Camera
 from geoscaler.color import quantize_linear, texture_to_linear
-from geoscaler.filters import lanczos, output_sizes, reference_textures
 from geoscaler.methods.direct import TexelModel
-from geoscaler.optimize import OptimizeConfig, optimize
+from geoscaler.optim.loop import OptimizeConfig, optimize
+from geoscaler.optim.validation import Validation, validation_view_sets
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
-from geoscaler.raster import GBuffer, rasterize
-from geoscaler.render import Renderer
-from geoscaler.soft import (
+from geoscaler.render.cameras import Camera
+from geoscaler.render.raster import GBuffer, rasterize
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.soft import (
     EPS,
     SoftFragments,
     SoftRenderer,
@@ -26,8 +27,8 @@ from geoscaler.soft import (
     interpolate,
     soft_rasterize,
 )
-from geoscaler.validation import Validation, validation_view_sets
-from geoscaler.views import training_views
+from geoscaler.render.views import training_views
+from geoscaler.resize.filters import lanczos, output_sizes, reference_textures
 
 F64 = torch.float64
 DEPTH_RANGE = (1.0, 100.0)

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 import torch
 
-from geoscaler import encoded as encoded_module
 from geoscaler.color import (
     linear_to_srgb,
     linear_to_texture,
@@ -14,8 +13,9 @@ from geoscaler.color import (
     texture_to_linear,
     to_rgb,
 )
-from geoscaler.encoded import EncodedMipTexture
-from geoscaler.texture import (
+from geoscaler.render import encoded as encoded_module
+from geoscaler.render.encoded import EncodedMipTexture
+from geoscaler.render.texture import (
     MipLayout,
     MipTexture,
     TapMatrix,

@@ -15,11 +15,11 @@ from io_assets import document
 from mesh_support import write_gltf
 
 import geoscaler.cli
-from geoscaler.cameras import Camera
 from geoscaler.errors import GeoscalerError
 from geoscaler.io import load_mesh, save_mesh
 from geoscaler.io.texture_transform import transform_matrix
 from geoscaler.protocol import Evaluation
+from geoscaler.render.cameras import Camera
 
 EXTENSION = "KHR_texture_transform"
 GLTF_UVS = np.float32([[0.1, 0.9], [0.7, 0.8], [0.2, 0.15]])  # glTF's v runs down

@@ -6,14 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from geoscaler.cameras import fibonacci_directions, spread_order
 from geoscaler.color import texture_to_linear
-from geoscaler.filters import bicubic, lanczos, output_sizes, reference_textures
-from geoscaler.metrics import mean_metrics
-from geoscaler.procedural import demo_mesh
-from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, Evaluation
-from geoscaler.render import Renderer
-from geoscaler.validation import (
+from geoscaler.optim.validation import (
     FLOOR_CONFIDENCE,
     GUARD_VIEWS,
     Scores,
@@ -25,6 +19,12 @@ from geoscaler.validation import (
     sets_below,
     validation_view_sets,
 )
+from geoscaler.procedural import demo_mesh
+from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, Evaluation
+from geoscaler.render.cameras import fibonacci_directions, spread_order
+from geoscaler.render.metrics import mean_metrics
+from geoscaler.render.renderer import Renderer
+from geoscaler.resize.filters import bicubic, lanczos, output_sizes, reference_textures
 
 
 def test_spread_order_is_a_permutation_whose_prefixes_span_the_sphere():

@@ -12,8 +12,8 @@ from pathlib import Path
 from typing import Any
 
 from geoscaler.io import find_assets as find_io_assets
-from geoscaler.report import json_safe
-from geoscaler.sizes import TEXTURE_CLASSES
+from geoscaler.report.documents import json_safe
+from geoscaler.resize.sizes import TEXTURE_CLASSES
 
 STAGING_PREFIX = ".geoscaler-batch-"
 """Staging folders: an asset's files are written there, then renamed into place."""

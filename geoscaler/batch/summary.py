@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from geoscaler.io.atomic import write_files
-from geoscaler.report import dumps, json_safe
+from geoscaler.report.documents import dumps, json_safe
 
 from .assets import Asset
 from .worker import DONE, FAILED, SKIPPED, AssetResult

@@ -12,13 +12,13 @@ from pathlib import Path
 from typing import Any
 
 from geoscaler.clock import WALL_CLOCK
-from geoscaler.downsampling import prepare
 from geoscaler.errors import GeoscalerError, WriteError
 from geoscaler.io import check_outputs
+from geoscaler.pipeline.downsampling import prepare
 from geoscaler.process import configure_process
 from geoscaler.protocol import PROTOCOL_EVALUATION, Evaluation
-from geoscaler.report import dumps
-from geoscaler.runner import downsample_and_report
+from geoscaler.report.documents import dumps
+from geoscaler.report.runner import downsample_and_report
 
 from .assets import Asset
 

@@ -1,9 +1,8 @@
 """The classic filters as methods: each resizes every reference map on its own
-(:mod:`geoscaler.filters`: box, bicubic, Lanczos, PBD), with no view of the mesh."""
+(:mod:`geoscaler.resize.filters`: box, bicubic, Lanczos, PBD), with no view of the mesh."""
 
 from __future__ import annotations
 
-from geoscaler.filters import BASELINES
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods.registry import (
     MethodOptions,
@@ -14,7 +13,8 @@ from geoscaler.methods.registry import (
     reference_maps,
     register,
 )
-from geoscaler.sizes import SizeRule
+from geoscaler.resize.filters import BASELINES
+from geoscaler.resize.sizes import SizeRule
 
 
 def filter_method(name: str) -> Run:

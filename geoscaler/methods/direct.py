@@ -12,7 +12,6 @@ from collections.abc import Sequence
 import torch
 
 from geoscaler.color import linear_to_srgb, srgb_to_linear, srgb_to_linear_slope, texture_to_linear
-from geoscaler.filters import lanczos
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods.learned import fit, loop_config, method_renderer
 from geoscaler.methods.registry import (
@@ -23,11 +22,12 @@ from geoscaler.methods.registry import (
     register,
 )
 from geoscaler.methods.repacked import repacked_direct
-from geoscaler.render import Renderer
-from geoscaler.sizes import SizeRule
+from geoscaler.render.renderer import Renderer
+from geoscaler.resize.filters import lanczos
+from geoscaler.resize.sizes import SizeRule
 
 # Texels are optimised as sRGB values (see TexelModel): in linear light the same rate is far
-# too large for dark texels. The first steps are majorise-minimise steps (geoscaler.majorize),
+# too large for dark texels. The first steps are majorise-minimise steps (geoscaler.optim.majorize),
 # since Adam's first steps move every texel by about the rate; then AdamW at 0.01 with a short
 # warm-up. A candidate that validates worse sends the loop back to its best at a quarter of the
 # rate, so a near-lossless start is not wrecked. No SSIM term: it gained less at equal time

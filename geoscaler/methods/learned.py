@@ -1,6 +1,6 @@
 """What every learned method does around the optimisation loop, once: take the job's renderer
 and validation (or make them), build the loop's settings from the options, run
-:func:`geoscaler.optimize.optimize` under the time left, and return 8-bit textures with the
+:func:`geoscaler.optim.loop.optimize` under the time left, and return 8-bit textures with the
 loop's facts for the report."""
 
 from __future__ import annotations
@@ -10,14 +10,14 @@ from typing import Any
 
 from geoscaler.clock import Budget
 from geoscaler.color import linear_to_texture
-from geoscaler.losses import PerceptualTerm
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext, output_sizes_for
-from geoscaler.optimize import Model, OptimizeConfig, optimize
-from geoscaler.render import Renderer
-from geoscaler.sizes import SizeRule
-from geoscaler.validation import Scores, Validation, validation_view_sets
-from geoscaler.views import ViewCache
+from geoscaler.optim.loop import Model, OptimizeConfig, optimize
+from geoscaler.optim.losses import PerceptualTerm
+from geoscaler.optim.validation import Scores, Validation, validation_view_sets
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.views import ViewCache
+from geoscaler.resize.sizes import SizeRule
 
 
 def method_renderer(mesh: TexturedMesh, options: MethodOptions, context: RunContext) -> Renderer:
@@ -62,7 +62,7 @@ def fit(
         perceptual: an extra loss term.
         details: the method's own facts for the report, listed before the loop's.
         pool, start_scores: an earlier loop's training pool and the scores of the model's
-            start, validated by it (:func:`geoscaler.optimize.optimize`).
+            start, validated by it (:func:`geoscaler.optim.loop.optimize`).
     """
     validation = context.validation
     if validation is None:

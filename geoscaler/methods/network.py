@@ -2,7 +2,7 @@
 
 The network maps the texture and its geometry maps to the small texture (and, for the
 warping variants, new UVs); its weights are the parameters of the shared optimisation loop
-(:func:`geoscaler.optimize.optimize`), exactly as the texels are for ``direct``. Registered
+(:func:`geoscaler.optim.loop.optimize`), exactly as the texels are for ``direct``. Registered
 as ``geoscaler`` and, one per ablation variant, ``geoscaler-base``, ``-gcm``, ``-uvw``, ``-full``.
 
 Presets:
@@ -29,8 +29,6 @@ from PIL import Image
 
 from geoscaler.color import texture_to_linear
 from geoscaler.errors import GeoscalerError
-from geoscaler.filters import lanczos, reference_textures, target_size
-from geoscaler.losses import PerceptualTerm
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods.learned import fit, loop_config, method_renderer
 from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext, register
@@ -42,8 +40,10 @@ from geoscaler.nn.network import (
     parameter_count,
 )
 from geoscaler.nn.perceptual import perceptual_loss
-from geoscaler.sizes import SizeRule
-from geoscaler.uvmaps import (
+from geoscaler.optim.losses import PerceptualTerm
+from geoscaler.resize.filters import lanczos, reference_textures, target_size
+from geoscaler.resize.sizes import SizeRule
+from geoscaler.uv.uvmaps import (
     check_square,
     geometry_maps,
     mesh_graph,

@@ -1,6 +1,6 @@
 """The registry of downsampling methods: what a method is, what it is handed, what it returns.
 
-A method takes a mesh and a :class:`~geoscaler.sizes.SizeRule` (a scale, a longest side...)
+A method takes a mesh and a :class:`~geoscaler.resize.sizes.SizeRule` (a scale, a longest side...)
 and returns 8-bit textures at the sizes the rule gives (one per textured material) and, if it
 moves them, new UVs. Every method starts from the reference maps (:func:`reference_maps`: the
 protocol's, originals over 2048 reduced, or a downsampling job's full-resolution originals),
@@ -20,16 +20,16 @@ from typing import Any
 
 import numpy as np
 
-from geoscaler.atlas import Atlas
 from geoscaler.clock import WALL_CLOCK, Clock
 from geoscaler.errors import GeoscalerError
-from geoscaler.events import Controller, ProgressEvent
-from geoscaler.filters import output_sizes, reference_textures
 from geoscaler.mesh import TexturedMesh
+from geoscaler.optim.events import Controller, ProgressEvent
+from geoscaler.optim.validation import Validation
 from geoscaler.protocol import REFERENCE_MAX_SIZE
-from geoscaler.render import Renderer
-from geoscaler.sizes import SizeRule, check_scale
-from geoscaler.validation import Validation
+from geoscaler.render.renderer import Renderer
+from geoscaler.resize.filters import output_sizes, reference_textures
+from geoscaler.resize.sizes import SizeRule, check_scale
+from geoscaler.uv.atlas import Atlas
 
 
 @dataclass(frozen=True)
@@ -43,7 +43,7 @@ class MethodOptions:
         steps: optimisation steps (None: the method's default).
         time_budget: wall-clock seconds the job may spend (None: no limit).
         settings: method-specific settings, e.g. the network's ``variant``, ``preset`` and
-            ``vgg19``, or ``optimize`` (:class:`~geoscaler.optimize.OptimizeConfig` overrides).
+            ``vgg19``, or ``optimize`` (:class:`~geoscaler.optim.loop.OptimizeConfig` overrides).
     """
 
     device: str = "auto"

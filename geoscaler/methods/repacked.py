@@ -1,8 +1,8 @@
 """``direct`` in a new UV layout (``--uv repack`` and ``--uv auto``).
 
 The charts are repacked by the texels the training views ask of them
-(:func:`geoscaler.atlas.repack`, planned on what every training camera sees), the
-reference maps are baked into the new layout (:func:`geoscaler.bake.bake`), and the texels are
+(:func:`geoscaler.uv.atlas.repack`, planned on what every training camera sees), the
+reference maps are baked into the new layout (:func:`geoscaler.uv.bake.bake`), and the texels are
 optimised through the renderer as ``direct`` does. References are always the original maps on
 the original UVs: the new layout has the same faces, in the same order, and every corner its
 3D position (UVs are given per face corner, so a cut chart's seam is two UVs of one vertex),
@@ -21,22 +21,22 @@ from typing import Any
 import numpy as np
 import torch
 
-from geoscaler.atlas import Atlas, repack
-from geoscaler.bake import ChartMaps, bake
-from geoscaler.cameras import Camera, sample_training_cameras
 from geoscaler.clock import Budget, Clock, unlimited
 from geoscaler.color import texture_to_linear
 from geoscaler.errors import GeoscalerError
-from geoscaler.events import ProgressEvent
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods.learned import fit, loop_config
 from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext, output_sizes_for
-from geoscaler.optimize import FINISH_MARGIN, OptimizeConfig
-from geoscaler.render import Renderer
-from geoscaler.sizes import COLOR, SizeRule
-from geoscaler.uvmodes import check_uv_mode
-from geoscaler.validation import MIN_FROZEN, Validation, sets_below, validation_view_sets
-from geoscaler.views import ViewCache, training_views
+from geoscaler.optim.events import ProgressEvent
+from geoscaler.optim.loop import FINISH_MARGIN, OptimizeConfig
+from geoscaler.optim.validation import MIN_FROZEN, Validation, sets_below, validation_view_sets
+from geoscaler.render.cameras import Camera, sample_training_cameras
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.views import ViewCache, training_views
+from geoscaler.resize.sizes import COLOR, SizeRule
+from geoscaler.uv.atlas import Atlas, repack
+from geoscaler.uv.bake import ChartMaps, bake
+from geoscaler.uv.uvmodes import check_uv_mode
 
 MAX_OVERSAMPLE = 4
 """Most samples per side of a new texel when baking (the original's density at 4x)."""
@@ -49,7 +49,7 @@ charts to the original's mip blocks, the unaligned one (:func:`_timely_layouts`)
 PREPARING_SHARE = 0.4
 """Under a time budget, the share of the method's time by which the new layout is planned and
 baked, the rest left to the steps: the packing's search stops there, the cut's plan is not
-made where it would end later (:func:`~geoscaler.atlas.repack`), nor the bake where its
+made where it would end later (:func:`~geoscaler.uv.atlas.repack`), nor the bake where its
 estimate would (:func:`bake_seconds`: the mesh's own layout goes on)."""
 
 
@@ -112,7 +112,7 @@ def plan_layout(
     budget: Budget | None = None,
     align: bool = True,
 ) -> Atlas:
-    """The new layout for ``rule``'s sizes within ``budget`` (:func:`~geoscaler.atlas.repack`;
+    """The new layout for ``rule``'s sizes within ``budget`` (:func:`~geoscaler.uv.atlas.repack`;
     None: no limit), its chart scales from the faces every
     training camera sees, one sample per pixel; ``align``: False never aligns charts.
 
@@ -360,7 +360,7 @@ def _timely_layouts(
 ) -> list[Atlas]:
     """The new layouts (:data:`NEW_LAYOUTS`), planned and baked by :data:`PREPARING_SHARE` of
     the time from ``started`` to ``end`` (None: no budget): the planned one, and where that
-    aligned its charts to the original's mip blocks (:func:`~geoscaler.atlas.alignment_for`)
+    aligned its charts to the original's mip blocks (:func:`~geoscaler.uv.atlas.alignment_for`)
     the unaligned one too, time allowing, so that a race weighs them; none where the layout
     does not move a chart or there is no time for it (the reason in
     ``facts["layout_skipped"]``). The first one's facts go in ``facts["layout"]``. Each bake
@@ -447,7 +447,7 @@ class _Trials:
 def _winner(trials: dict[str, MethodResult], layouts: dict[str, Layout], facts: dict) -> str:
     """The layout whose trial ranks first on the validation (a tie keeps the mesh's own) among
     those not below the mesh's own layout's trial on any set beyond the noise
-    (:func:`~geoscaler.validation.sets_below`): a new layout better on Q but worse far away
+    (:func:`~geoscaler.optim.validation.sets_below`): a new layout better on Q but worse far away
     does not replace the own one. Each trial's steps, Q, PSNR-fg on every set, shortfall and
     the sets it is below the own layout on go into ``facts["race"]``."""
     scores = {name: trial.details["validation_scores"] for name, trial in trials.items()}

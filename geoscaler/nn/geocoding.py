@@ -13,8 +13,8 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from geoscaler.texture import take
-from geoscaler.uvmaps import MeshGraph, UVRaster
+from geoscaler.render.texture import take
+from geoscaler.uv.uvmaps import MeshGraph, UVRaster
 
 
 class GraphConv(nn.Module):

@@ -24,7 +24,7 @@ from torch import nn
 from geoscaler.nn.convolutional import Decoder, Encoder
 from geoscaler.nn.geocoding import GeoCoding
 from geoscaler.nn.uvwarper import UVWarper, fold_free_factor, warp_plane, warp_uvs
-from geoscaler.uvmaps import INPUT_CHANNELS, MeshGraph, UVRaster
+from geoscaler.uv.uvmaps import INPUT_CHANNELS, MeshGraph, UVRaster
 
 VARIANTS = {
     "base": (False, False),

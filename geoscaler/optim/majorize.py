@@ -22,7 +22,7 @@ from typing import Protocol, runtime_checkable
 import torch
 
 from geoscaler.color import linear_to_srgb, linear_to_srgb_slope
-from geoscaler.views import ViewCache, mip_chains
+from geoscaler.render.views import ViewCache, mip_chains
 
 DAMPING = 1e-3
 """Added to the curvature bound, relative to its mean over the texels with one: keeps the

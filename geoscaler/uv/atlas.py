@@ -2,7 +2,7 @@
 
 With its own UVs a scan's texture spends most of its texels on nothing (UV coverage of 8 to
 50 %) and the rest evenly, whatever the views show of each chart. :func:`repack` finds the
-charts of the mesh's UV layout (:func:`geoscaler.uvmaps.chart_labels`), scales each by the
+charts of the mesh's UV layout (:func:`geoscaler.uv.uvmaps.chart_labels`), scales each by the
 screen footprint the training cameras give it per unit of its UV area (the texels a view asks
 of it), and packs the scaled charts into one ``R x R`` atlas with ``xatlas``, as large as one
 atlas still holds them all, with padding enough for the mip levels the far views read. A chart
@@ -33,11 +33,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from geoscaler.cameras import sample_extent
 from geoscaler.clock import Budget, unlimited
 from geoscaler.io.slots import slot_info
 from geoscaler.mesh import TexturedMesh
-from geoscaler.packing import (
+from geoscaler.protocol import FAR_DISTANCE
+from geoscaler.render.cameras import sample_extent
+from geoscaler.uv.packing import (
     SCALE_TOLERANCE,
     Charts,
     PackingError,
@@ -49,8 +50,7 @@ from geoscaler.packing import (
     padding_violations,
     signed_areas,
 )
-from geoscaler.protocol import FAR_DISTANCE
-from geoscaler.uvmaps import (
+from geoscaler.uv.uvmaps import (
     GRAZING_STRETCH,
     chart_labels,
     cut_charts,
@@ -231,8 +231,8 @@ def has_normal_map(mesh: TexturedMesh, materials: Sequence[int]) -> bool:
 
 def chart_footprint(charts: np.ndarray, tri_ids: Sequence[torch.Tensor]) -> np.ndarray:
     """``(C,)`` float64 screen samples of each chart over some views: ``tri_ids`` holds per view
-    the ``(N,)`` face each covered sample sees (:attr:`geoscaler.raster.GBuffer.tri_ids`,
-    occlusion included); ``charts`` is ``(F,)`` (:func:`geoscaler.uvmaps.chart_labels`)."""
+    the ``(N,)`` face each covered sample sees (:attr:`geoscaler.render.raster.GBuffer.tri_ids`,
+    occlusion included); ``charts`` is ``(F,)`` (:func:`geoscaler.uv.uvmaps.chart_labels`)."""
     samples = np.zeros(len(charts))
     for ids in tri_ids:
         samples += np.bincount(ids.long().cpu().numpy(), minlength=len(charts))
@@ -240,7 +240,7 @@ def chart_footprint(charts: np.ndarray, tri_ids: Sequence[torch.Tensor]) -> np.n
 
 
 uv_areas = signed_areas
-"""``(F,)`` signed UV area of each face (:func:`geoscaler.packing.signed_areas`)."""
+"""``(F,)`` signed UV area of each face (:func:`geoscaler.uv.packing.signed_areas`)."""
 
 
 def planned_scales(footprint: np.ndarray, chart_area: np.ndarray) -> np.ndarray:
@@ -272,7 +272,7 @@ def padding_for(mesh: TexturedMesh, faces: np.ndarray, size: tuple[int, int], sa
 
 def alignment_for(mesh: TexturedMesh, faces: np.ndarray, size: int, samples: int) -> int:
     """Texels every chart's offset is a multiple of (1: none), its scale then a power of two
-    times the original's texels per output texel (:func:`~geoscaler.packing.aligned_scales`):
+    times the original's texels per output texel (:func:`~geoscaler.uv.packing.aligned_scales`):
     :data:`ALIGNMENT` where the far views minify the new texture (a surface facing the camera
     at the far view's farthest depth reads level 0 or coarser on 90 % of the faces), so that
     its mip blocks are the original's, which the far views' references read."""
@@ -289,9 +289,9 @@ def alignment_for(mesh: TexturedMesh, faces: np.ndarray, size: int, samples: int
 def group_charts(
     mesh: TexturedMesh, materials: Sequence[int], charts: np.ndarray
 ) -> tuple[np.ndarray, Charts, np.ndarray, np.ndarray]:
-    """The faces of ``materials`` as :class:`~geoscaler.packing.Charts`: ``((G,) face indices,
+    """The faces of ``materials`` as :class:`~geoscaler.uv.packing.Charts`: ``((G,) face indices,
     charts, (C',) global chart id of each local chart, (C', 2) shift)``; a corner is a
-    :func:`~geoscaler.uvmaps.uv_corner_ids` on one chart (a cut chart's pieces are charts).
+    :func:`~geoscaler.uv.uvmaps.uv_corner_ids` on one chart (a cut chart's pieces are charts).
 
     xatlas packs charts whose corners have equal UVs as one: the pieces of a cut chart, which
     meet along the cut, are each moved by a shift of their own (:data:`SEPARATION` times their
@@ -328,7 +328,7 @@ def repack(
     what some views (the training views, never the validation's) show of them.
 
     The charts are packed whole first (:func:`plan_charts`); where one then spans more than
-    :data:`CUT_SIDE` of its atlas, those charts are cut (:func:`geoscaler.uvmaps.cut_charts`)
+    :data:`CUT_SIDE` of its atlas, those charts are cut (:func:`geoscaler.uv.uvmaps.cut_charts`)
     into pieces at most that long at the first packing's scales and packed again, and the
     cut layout is taken where its ``k`` is at least :data:`CUT_GAIN` times the whole charts'.
     The cut is not planned where, at the whole plan's cost, it would not fit ``budget``.
@@ -343,7 +343,7 @@ def repack(
             and where the far views minify the new texture each chart covers a power-of-two
             block of the original's texels (:func:`alignment_for`). None: neither.
         budget: the time the plan must be made in (None: no limit): the packing's search
-            stops at its end (:func:`~geoscaler.packing.pack`).
+            stops at its end (:func:`~geoscaler.uv.packing.pack`).
         align: False: charts are never aligned (the other layout a race weighs).
 
     Returns:
@@ -373,7 +373,7 @@ def repack(
 
 def cut_lengths(mesh: TexturedMesh, atlas: Atlas, charts: np.ndarray) -> np.ndarray:
     """``(C,)`` float64 longest piece of each chart (old UV units) for
-    :func:`~geoscaler.uvmaps.cut_charts`: :data:`CUT_SIDE` of the atlas at the chart's packed
+    :func:`~geoscaler.uv.uvmaps.cut_charts`: :data:`CUT_SIDE` of the atlas at the chart's packed
     scale where its packed side is longer than that, ``inf`` elsewhere (charts not moved
     too)."""
     count = len(atlas.planned)
@@ -396,7 +396,7 @@ def plan_charts(
     align: bool = True,
 ) -> Atlas:
     """The layout of ``charts`` (``(F,)`` labels, each chart moved whole) as :func:`repack`
-    plans it, within ``budget`` (:func:`~geoscaler.packing.pack`)."""
+    plans it, within ``budget`` (:func:`~geoscaler.uv.packing.pack`)."""
     groups, kept = layout_groups(mesh, sizes, charts)
     count = int(charts.max()) + 1 if len(charts) else 0
     chart_area = np.bincount(charts, np.abs(uv_areas(mesh.uvs, mesh.faces)), minlength=count)
@@ -446,7 +446,7 @@ def _lay_out(
 ) -> None:
     """Pack the charts of ``materials`` into ``atlas`` (in place) within ``budget``, aligned
     (:func:`alignment_for`, unless ``align`` is False) where they fit so, or leave ``atlas`` as
-    it was and raise :class:`~geoscaler.packing.PackingError` when they do not fit, break a
+    it was and raise :class:`~geoscaler.uv.packing.PackingError` when they do not fit, break a
     guard or found no packing in time."""
     faces, group, ids, shift = group_charts(mesh, materials, charts)
     size = atlas.sizes[materials[0]][0]
@@ -491,7 +491,7 @@ def chart_boxes(
     mesh: TexturedMesh, charts: np.ndarray, count: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """``((C, 2) low corner, (C, 2) extent)`` float64 of each chart's UV bounding box in UV
-    units; ``charts`` is ``(F,)`` (:func:`~geoscaler.uvmaps.chart_labels`), ``count`` >= C."""
+    units; ``charts`` is ``(F,)`` (:func:`~geoscaler.uv.uvmaps.chart_labels`), ``count`` >= C."""
     corners = mesh.corner_uvs().astype(np.float64).reshape(-1, 2)
     return label_boxes(corners, np.repeat(charts, 3), count)
 

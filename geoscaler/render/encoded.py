@@ -1,6 +1,6 @@
 """8-bit textures sampled as GPU-style mip chains without a float copy at full size.
 
-:class:`EncodedMipTexture` is a :class:`~geoscaler.texture.MipTexture` for lookups only whose
+:class:`EncodedMipTexture` is a :class:`~geoscaler.render.texture.MipTexture` for lookups only whose
 level 0 stays the texture's 8-bit codes, decoded tap by tap, and whose coarser levels alone are
 float32: what the renderer's references (the original, often the largest image of a job) and
 the bake into a new layout read. A lookup gives the same bits as on the float chain.
@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from geoscaler.color import DECODED_SRGB
-from geoscaler.texture import MipLayout, MipTexture, gather, mip_sizes, next_mip_level
+from geoscaler.render.texture import MipLayout, MipTexture, gather, mip_sizes, next_mip_level
 
 ENCODED_BAND_TEXELS = 1 << 20
 """Texels of level 0 an :class:`EncodedMipTexture` decodes at a time to make level 1 (12 MB of
@@ -36,7 +36,8 @@ class EncodedMipTexture(MipTexture):
     """The mip chain of an 8-bit texture, for lookups only, in a fraction of a
     :class:`MipTexture`'s memory: level 0 stays the texture's 8-bit codes, decoded tap by tap
     through a table per channel, and only the coarser levels are float32, made from level 0 a
-    band of rows at a time (:func:`~geoscaler.texture.next_mip_level`). Every lookup gives the
+    band of rows at a time (:func:`~geoscaler.render.texture.next_mip_level`). Every lookup gives
+    the
     same bits as the :class:`MipTexture` of the decoded texture (by default
     ``texture_to_linear(texture)``); no gradient flows (the original's chain, which views are
     rendered from).

@@ -7,17 +7,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from geoscaler.arguments import method_options
-from geoscaler.console import DownsampleProgress, stop_on_interrupt
-from geoscaler.downsampling import Job, prepare, product_evaluation, run_job
-from geoscaler.events import Controller
 from geoscaler.io import check_output, prepare_folder, save_mesh, save_png, write_atomically
-from geoscaler.job import Downsampled
 from geoscaler.methods import is_learned
+from geoscaler.optim.events import Controller
+from geoscaler.pipeline.arguments import method_options
+from geoscaler.pipeline.downsampling import Job, prepare, product_evaluation, run_job
+from geoscaler.pipeline.job import Downsampled
 from geoscaler.procedural import scan_mesh
 from geoscaler.protocol import GAIN_REFERENCE, PROTOCOL_EVALUATION, Evaluation
-from geoscaler.render import Renderer
-from geoscaler.report import comparison_picture, dumps, format_report, report_document
+from geoscaler.render.renderer import Renderer
+from geoscaler.report.console import DownsampleProgress, stop_on_interrupt
+from geoscaler.report.documents import comparison_picture, dumps, format_report, report_document
 
 
 def downsample_and_report(

@@ -2,12 +2,12 @@
 
 Every texel of the new texture is the average of ``supersample x supersample`` samples, each
 the original texture looked up where the chart's map sends the sample back in the old layout
-(the charts moved by similarities, :mod:`geoscaler.atlas`), filtered as a GPU does
-(:meth:`geoscaler.texture.MipTexture.sample`: trilinear, its level of detail
+(the charts moved by similarities, :mod:`geoscaler.uv.atlas`), filtered as a GPU does
+(:meth:`geoscaler.render.texture.MipTexture.sample`: trilinear, its level of detail
 from how far one sample moves in the old texture): an area filter over the original's texels,
-read from its 8-bit texels (:class:`~geoscaler.texture.EncodedMipTexture`: no float copy of a
+read from its 8-bit texels (:class:`~geoscaler.render.texture.EncodedMipTexture`: no float copy of a
 large map at full size).
-Values are filtered as what they hold (:mod:`geoscaler.maps`'s classes): colour in linear
+Values are filtered as what they hold (:mod:`geoscaler.resize.maps`'s classes): colour in linear
 light (alpha linear), tangent-space normals as vectors renormalised afterwards, data per
 channel. Texels no face covers (gutters) read the original through their nearest chart's map,
 so that mip levels and bilinear taps around a chart see what they saw around it in the
@@ -24,12 +24,12 @@ from PIL import Image
 from scipy.ndimage import distance_transform_edt
 
 from geoscaler.color import linear_to_srgb, srgb_to_linear
-from geoscaler.encoded import Decoding, EncodedMipTexture, decode_codes
-from geoscaler.filters import resize_float
-from geoscaler.maps import resize_map
-from geoscaler.raster import rasterize
-from geoscaler.sizes import COLOR, NORMAL
-from geoscaler.texture import UVFootprint
+from geoscaler.render.encoded import Decoding, EncodedMipTexture, decode_codes
+from geoscaler.render.raster import rasterize
+from geoscaler.render.texture import UVFootprint
+from geoscaler.resize.filters import resize_float
+from geoscaler.resize.maps import resize_map
+from geoscaler.resize.sizes import COLOR, NORMAL
 
 
 def decode(pixels: np.ndarray, kind: str) -> torch.Tensor:
@@ -90,12 +90,13 @@ def bake(
     coarse levels the far views read). With ``oversample > 1`` the bake is then resized to
     ``size``: colour with Pillow's Lanczos on its stored sRGB values, as the ``lanczos``
     baseline but in float (rounded to 8 bits once), other classes by
-    :func:`geoscaler.maps.resize_map`: the protocol scores sRGB images, and filtering in linear
+    :func:`geoscaler.resize.maps.resize_map`: the protocol scores sRGB images, and filtering in
+    linear
     light softens edges (``benchmarks/far_views.py``; see docs/decisions/bake-filtering.md).
 
     Args:
         pixels: ``(H, W, C)`` uint8 map in the old layout (repeat addressing).
-        kind: its class (``COLOR``, ``NORMAL`` or ``DATA``, :mod:`geoscaler.sizes`).
+        kind: its class (``COLOR``, ``NORMAL`` or ``DATA``, :mod:`geoscaler.resize.sizes`).
         layout: the faces in the new layout and each chart's map.
         size: texels per side of the new map.
         oversample: samples per side of each texel.

@@ -11,8 +11,8 @@ from collections.abc import Iterator
 from typing import Any
 
 from geoscaler.clock import WALL_CLOCK, Clock, WallClock
-from geoscaler.events import Controller, ProgressEvent
-from geoscaler.job import JobObserver
+from geoscaler.optim.events import Controller, ProgressEvent
+from geoscaler.pipeline.job import JobObserver
 
 
 def command_started_at(called_at: float | None, clock: WallClock = WALL_CLOCK) -> float:

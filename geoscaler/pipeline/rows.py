@@ -9,10 +9,10 @@ from typing import Any
 import numpy as np
 
 from geoscaler.methods import MethodResult
-from geoscaler.metrics import METRIC_NAMES, mean_metrics
+from geoscaler.optim.validation import Validation
 from geoscaler.protocol import BYTES_PER_TEXEL, VALIDATION_DISTANCE
-from geoscaler.validation import Validation
-from geoscaler.views import ViewCache
+from geoscaler.render.metrics import METRIC_NAMES, mean_metrics
+from geoscaler.render.views import ViewCache
 
 ROW_KEYS = (
     "method",
@@ -30,7 +30,7 @@ ROW_KEYS = (
 ``texture_bytes`` the RGBA8 memory of all textures (``BYTES_PER_TEXEL``), PSNRs and gain in
 dB (``+inf`` for a render identical to the reference), ``seconds`` the method's wall time,
 ``shipped`` the method whose textures the row scores: the row's own, or for a learned method
-the filter the validation ranked above it (:func:`geoscaler.job.no_worse_than_filters`)."""
+the filter the validation ranked above it (:func:`geoscaler.pipeline.job.no_worse_than_filters`)."""
 
 
 def texture_facts(textures: Sequence[np.ndarray | None]) -> tuple[list[int], int]:

@@ -2,7 +2,7 @@
 
 ``geoscaler bench PATH...`` finds mesh files (a folder whose ``meta.json`` names an ``"entry"``
 contributes that one file; other folders every ``.obj``/``.gltf``/``.glb`` in them, searched
-recursively), runs :func:`geoscaler.job.compare_mesh` on each, skips (and reports) a mesh
+recursively), runs :func:`geoscaler.pipeline.job.compare_mesh` on each, skips (and reports) a mesh
 that fails, and averages the protocol metrics over the meshes that succeeded.
 """
 
@@ -20,13 +20,18 @@ from typing import Any
 
 import numpy as np
 
-from geoscaler.arguments import check_distances, check_method, check_scales, comparison_settings
 from geoscaler.clock import WALL_CLOCK, Clock
 from geoscaler.errors import GeoscalerError
 from geoscaler.io import SUPPORTED_SUFFIXES, find_assets, load_mesh
-from geoscaler.job import JobObserver, compare_mesh, prepare_out_dir
 from geoscaler.methods import MethodOptions
-from geoscaler.metrics import METRIC_NAMES
+from geoscaler.pipeline.arguments import (
+    check_distances,
+    check_method,
+    check_scales,
+    comparison_settings,
+)
+from geoscaler.pipeline.job import JobObserver, compare_mesh, prepare_out_dir
+from geoscaler.pipeline.rows import ROW_KEYS
 from geoscaler.protocol import (
     BYTES_PER_TEXEL,
     PROTOCOL,
@@ -34,9 +39,9 @@ from geoscaler.protocol import (
     VALIDATION_DISTANCE,
     Evaluation,
 )
-from geoscaler.render import Renderer
-from geoscaler.report import describe_device, dumps, json_safe
-from geoscaler.rows import ROW_KEYS
+from geoscaler.render.metrics import METRIC_NAMES
+from geoscaler.render.renderer import Renderer
+from geoscaler.report.documents import describe_device, dumps, json_safe
 
 METRIC_TITLES = {
     "psnr_fg": "PSNR-fg (dB)",
@@ -69,7 +74,7 @@ class BenchResult:
 
     Attributes:
         rows: one dict per (mesh, distance, scale, method): ``"mesh"``, ``"path"`` and
-            :data:`geoscaler.job.ROW_KEYS`.
+            :data:`geoscaler.pipeline.job.ROW_KEYS`.
         meshes: the meshes that were evaluated.
         failed: ``(path, message)`` of each mesh that was skipped.
         device: the torch device of the renders (e.g. ``"cpu"``).
@@ -133,7 +138,7 @@ def bench_meshes(
 
     Args:
         meshes: from :func:`find_meshes`.
-        scales, methods, distances, options: as :func:`geoscaler.job.compare_mesh`.
+        scales, methods, distances, options: as :func:`geoscaler.pipeline.job.compare_mesh`.
         evaluation: image size and views of every mesh's renders (default: protocol 1).
         progress: show a tqdm bar on stderr.
         report: receives one line per skipped mesh (default: printed above the bar).
@@ -374,7 +379,7 @@ def plot_name(distance: float, distances: Sequence[float]) -> str:
 
 def tradeoff_picture(result: BenchResult, distance: float) -> np.ndarray:
     """Mean PSNR-fg against mean texture memory, one line per method across scales."""
-    from geoscaler.figures import tradeoff_plot
+    from geoscaler.report.figures import tradeoff_plot
 
     series: dict[str, list[tuple[float, float, str]]] = {}
     for s in summarize(result.rows):

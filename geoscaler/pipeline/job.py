@@ -23,26 +23,26 @@ from typing import Any
 
 import numpy as np
 
-from geoscaler.arguments import check_distances, check_method, check_rules
-from geoscaler.cameras import spread_order, view_set_cameras
 from geoscaler.clock import WALL_CLOCK, Clock
 from geoscaler.errors import GeoscalerError
-from geoscaler.events import Controller, ProgressEvent
-from geoscaler.filters import output_sizes
 from geoscaler.io import (
     check_outputs,
     prepare_folder,
 )
-from geoscaler.maps import resize_alpha
 from geoscaler.mesh import Material, TexturedMesh, check_geometry
 from geoscaler.methods import MethodOptions, MethodResult, RunContext, is_learned, run_method
+from geoscaler.optim.events import Controller, ProgressEvent
+from geoscaler.optim.validation import MIN_FROZEN, Validation, validation_view_sets
+from geoscaler.pipeline.arguments import check_distances, check_method, check_rules
+from geoscaler.pipeline.rows import protocol_row, validation_row
+from geoscaler.pipeline.shipping import ShippedMap, alpha_cutoff
 from geoscaler.protocol import GAIN_REFERENCE, REFERENCE_MAX_SIZE, VALIDATION_DISTANCE
-from geoscaler.render import Renderer
-from geoscaler.rows import protocol_row, validation_row
-from geoscaler.shipping import ShippedMap, alpha_cutoff
-from geoscaler.sizes import SizeRule
-from geoscaler.validation import MIN_FROZEN, Validation, validation_view_sets
-from geoscaler.views import ViewCache, ViewSet
+from geoscaler.render.cameras import spread_order, view_set_cameras
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.views import ViewCache, ViewSet
+from geoscaler.resize.filters import output_sizes
+from geoscaler.resize.maps import resize_alpha
+from geoscaler.resize.sizes import SizeRule
 
 REPORT_BASELINES = ("bicubic", "lanczos")
 """Methods a downsampling job always scores beside its result (bicubic is the gain's zero)."""
@@ -93,7 +93,7 @@ class Comparison:
 def checked_output_sizes(
     mesh: TexturedMesh, scale: int | SizeRule, max_size: int | None = REFERENCE_MAX_SIZE
 ) -> list[tuple[int, int] | None]:
-    """:func:`geoscaler.filters.output_sizes` of a scale or rule, refusing a bad scale and a
+    """:func:`geoscaler.resize.filters.output_sizes` of a scale or rule, refusing a bad scale and a
     mesh with nothing to downsample."""
     (rule,) = check_rules([scale])
     try:
@@ -112,7 +112,7 @@ def ship_textures(
 ) -> list[np.ndarray | None]:
     """The method's textures as they will be written: where the reference map has alpha and
     the method returned RGB only (learned methods optimise colour), the reference's alpha is
-    resized to the texture's size and appended (:func:`geoscaler.maps.resize_alpha`: a
+    resized to the texture's size and appended (:func:`geoscaler.resize.maps.resize_alpha`: a
     ``MASK`` material keeps its coverage), so cut-outs survive."""
     shipped: list[np.ndarray | None] = []
     for texture, original, material in zip(textures, references, materials, strict=True):
@@ -148,7 +148,7 @@ def compare_mesh(
     """Run ``methods`` at every scale and score them.
 
     The filters run first; they are the *baselines* of the learned methods, which validate on a
-    :class:`~geoscaler.validation.Validation` (Q and near/far guards, cached while they train)
+    :class:`~geoscaler.optim.validation.Validation` (Q and near/far guards, cached while they train)
     and ship their result only where it clears the best baseline on every validation set
     (:func:`no_worse_than_filters`). Under a job-wide budget a learned method that cannot take
     a step in what is left is not run, and its Lanczos start ships (:func:`learned_fits`).
@@ -290,7 +290,7 @@ def learned_fits(validation: Validation, budget: float | None, reserve: float) -
     one view more, then what its loop owes whether or not it steps (its start and a candidate
     validated, the baselines scored, the views the validation still needs, the rows' scoring),
     then ``reserve``. Where this does not fit, the loop could not take a step (it asks
-    ``views_per_step`` views and :data:`~geoscaler.optimize.FINISH_MARGIN` on the same
+    ``views_per_step`` views and :data:`~geoscaler.optim.loop.FINISH_MARGIN` on the same
     estimate) and would still validate its start, overrunning a short budget.
 
     Views are priced on one validation view cached here first (the loop would cache it), after

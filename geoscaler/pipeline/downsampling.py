@@ -2,8 +2,8 @@
 
 :func:`prepare` checks everything that can be checked before long work (arguments, outputs
 that must not overwrite inputs, the mesh) and returns a :class:`Job`; :func:`run_job` runs it
-through :func:`geoscaler.job.downsample` (the method beside bicubic and Lanczos on Q) and
-:func:`export` writes the asset as it ships (:mod:`geoscaler.shipping`: every map at its
+through :func:`geoscaler.pipeline.job.downsample` (the method beside bicubic and Lanczos on Q) and
+:func:`export` writes the asset as it ships (:mod:`geoscaler.pipeline.shipping`: every map at its
 class's size).
 """
 
@@ -13,10 +13,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from geoscaler.arguments import check_method
 from geoscaler.clock import WALL_CLOCK, Clock
 from geoscaler.errors import GeoscalerError
-from geoscaler.events import Controller
 from geoscaler.io import (
     check_output,
     check_outputs,
@@ -25,24 +23,26 @@ from geoscaler.io import (
     output_files,
     save_mesh,
 )
-from geoscaler.job import (
+from geoscaler.mesh import TexturedMesh
+from geoscaler.methods import MethodOptions, MethodResult
+from geoscaler.optim.events import Controller
+from geoscaler.pipeline.arguments import check_method
+from geoscaler.pipeline.job import (
     Downsampled,
     JobObserver,
     checked_output_sizes,
     downsample,
 )
-from geoscaler.mesh import TexturedMesh
-from geoscaler.methods import MethodOptions, MethodResult
-from geoscaler.protocol import Evaluation
-from geoscaler.render import Renderer
-from geoscaler.shipping import (
+from geoscaler.pipeline.shipping import (
     ShippedMap,
     relayout_maps,
     ship_asset,
     with_lossless_base_colors,
     without_stale_tangents,
 )
-from geoscaler.sizes import SizePlan, check_scale, size_plan
+from geoscaler.protocol import Evaluation
+from geoscaler.render.renderer import Renderer
+from geoscaler.resize.sizes import SizePlan, check_scale, size_plan
 
 OUTPUT_SUFFIXES = (".glb", ".gltf", ".obj")
 EXPORT_RESERVE = 2.0
@@ -182,7 +182,8 @@ def export(
     force: bool = False,
     image_format: str | None = None,
 ) -> tuple[list[Path], list[ShippedMap]]:
-    """Write the asset as it ships (:func:`geoscaler.shipping.ship_asset`: the result's base
+    """Write the asset as it ships (:func:`geoscaler.pipeline.shipping.ship_asset`: the result's
+    base
     colours and UVs, every other map at its class's size) in the format ``output`` names.
 
     Returns the files written, the main file last, and every texture before and after, with

@@ -17,15 +17,15 @@ from typing import Any
 
 import numpy as np
 
-from geoscaler.devices import resolve_device
 from geoscaler.errors import GeoscalerError
-from geoscaler.filters import check_scale
 from geoscaler.io import IMAGE_FORMATS
 from geoscaler.methods import MethodOptions, get_method, is_learned, method_names
 from geoscaler.methods.network import check_preset, check_variant
 from geoscaler.protocol import VIEWS
-from geoscaler.sizes import SizePlan, SizeRule, parse_class_value, size_plan
-from geoscaler.uvmodes import check_uv_mode
+from geoscaler.render.devices import resolve_device
+from geoscaler.resize.filters import check_scale
+from geoscaler.resize.sizes import SizePlan, SizeRule, parse_class_value, size_plan
+from geoscaler.uv.uvmodes import check_uv_mode
 
 DEFAULT_TIME_BUDGET = 60.0
 """Seconds a learned method's job may spend when ``--time-budget`` is not given (downsample,
@@ -43,7 +43,7 @@ def check_scales(scales: Sequence[Any]) -> list[int]:
 
 def check_rules(scales: Sequence[Any]) -> list[SizeRule]:
     """Distinct size rules, in the given order: each whole scale factor >= 2 as the rule that
-    divides by it, each :class:`~geoscaler.sizes.SizeRule` as it is."""
+    divides by it, each :class:`~geoscaler.resize.sizes.SizeRule` as it is."""
     if not scales:
         raise GeoscalerError("--scale: give at least one scale factor, e.g. --scale 4 8")
     return list(

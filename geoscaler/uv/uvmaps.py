@@ -22,11 +22,11 @@ import torch
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from geoscaler.cameras import sample_extent
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import TexturedMesh
-from geoscaler.raster import GBuffer, rasterize
-from geoscaler.texture import build_mip_chain, mip_sizes
+from geoscaler.render.cameras import sample_extent
+from geoscaler.render.raster import GBuffer, rasterize
+from geoscaler.render.texture import build_mip_chain, mip_sizes
 
 
 def uv_corner_ids(mesh: TexturedMesh) -> np.ndarray:

@@ -8,7 +8,7 @@ from typing import Any
 from geoscaler.errors import GeoscalerError
 
 UV_MODES = ("keep", "repack", "auto")
-"""Keep the mesh's UV layout, repack its charts (:mod:`geoscaler.atlas`), or choose per mesh
+"""Keep the mesh's UV layout, repack its charts (:mod:`geoscaler.uv.atlas`), or choose per mesh
 (:func:`geoscaler.methods.repacked.raced`)."""
 
 

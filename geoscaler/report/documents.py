@@ -1,6 +1,7 @@
 """What a job shows people: tables, strict JSON, reports and comparison pictures.
 
-Rows come from :func:`geoscaler.job.compare_mesh` (keys :data:`geoscaler.job.ROW_KEYS`).
+Rows come from :func:`geoscaler.pipeline.job.compare_mesh` (keys
+:data:`geoscaler.pipeline.job.ROW_KEYS`).
 """
 
 from __future__ import annotations
@@ -14,19 +15,19 @@ from typing import Any
 import numpy as np
 import torch
 
-from geoscaler.cameras import fibonacci_directions, validation_cameras
-from geoscaler.downsampling import Job
-from geoscaler.figures import comparison_sheet
-from geoscaler.filters import reference_textures
-from geoscaler.job import Comparison, Downsampled
 from geoscaler.mesh import TexturedMesh
-from geoscaler.metrics import evaluate
+from geoscaler.pipeline.downsampling import Job
+from geoscaler.pipeline.job import Comparison, Downsampled
+from geoscaler.pipeline.rows import texture_facts
+from geoscaler.pipeline.shipping import ShippedMap
 from geoscaler.protocol import PROTOCOL, VALIDATION_DISTANCE
-from geoscaler.render import Renderer, image_to_uint8
-from geoscaler.rows import texture_facts
-from geoscaler.shipping import ShippedMap
-from geoscaler.sizes import TEXTURE_CLASSES
-from geoscaler.views import ViewSet
+from geoscaler.render.cameras import fibonacci_directions, validation_cameras
+from geoscaler.render.metrics import evaluate
+from geoscaler.render.renderer import Renderer, image_to_uint8
+from geoscaler.render.views import ViewSet
+from geoscaler.report.figures import comparison_sheet
+from geoscaler.resize.filters import reference_textures
+from geoscaler.resize.sizes import TEXTURE_CLASSES
 
 
 def json_safe(value: Any) -> Any:
@@ -127,8 +128,9 @@ def comparison_picture(
     """The labelled comparison sheet of ``methods`` at ``scale``, on ``count`` protocol views.
 
     Views are picked with :func:`pick_views` from the foreground counts measured at
-    ``distance``; see :func:`geoscaler.figures.comparison_sheet` for the layout. ``renderer``
-    as in :func:`geoscaler.job.compare_mesh` (default: a protocol one on the comparison's device).
+    ``distance``; see :func:`geoscaler.report.figures.comparison_sheet` for the layout. ``renderer``
+    as in :func:`geoscaler.pipeline.job.compare_mesh` (default: a protocol one on the comparison's
+    device).
 
     Returns:
         ``(H, W, 3)`` uint8 RGB.
@@ -366,7 +368,7 @@ def _layout_lines(method: str, details: dict[str, Any]) -> list[str]:
 
 
 def _cut_line(layout: dict[str, Any]) -> str:
-    """What became of the charts longer than half the atlas (:func:`geoscaler.atlas.repack`)."""
+    """What became of the charts longer than half the atlas (:func:`geoscaler.uv.atlas.repack`)."""
     count = layout["charts_cut"]
     charts = f"{count} chart{'' if count == 1 else 's'} longer than half the atlas"
     if layout["cut"]:

@@ -3,7 +3,8 @@
 The GeoScaler paper trains through PyTorch3D's ``SoftRasterizer`` and a Phong shader under white
 ambient light: a surface point shows its base-colour texture sample (bilinear, level 0, no mip
 chain) times the base-colour factor. :class:`SoftRenderer` renders that way, as an option for
-training; evaluation stays with the exact renderer (:mod:`geoscaler.render`), as a GPU shows it.
+training; evaluation stays with the exact renderer (:mod:`geoscaler.render.renderer`), as a GPU
+shows it.
 
 Each sample ``p`` of the (supersampled) grid, in normalised device coordinates, looks at the
 triangles whose screen distance to it is below the blur radius ``r`` (a squared distance, as in
@@ -50,13 +51,13 @@ from dataclasses import dataclass
 
 import torch
 
-from geoscaler.cameras import Camera
 from geoscaler.color import linear_to_srgb, texture_to_linear
-from geoscaler.devices import mesh_tensors, resolve_device
-from geoscaler.filters import reference_textures
 from geoscaler.mesh import TexturedMesh
 from geoscaler.protocol import PROTOCOL_EVALUATION, Evaluation
-from geoscaler.texture import MipLayout, MipTexture, gather
+from geoscaler.render.cameras import Camera
+from geoscaler.render.devices import mesh_tensors, resolve_device
+from geoscaler.render.texture import MipLayout, MipTexture, gather
+from geoscaler.resize.filters import reference_textures
 
 SIGMA = 1e-4
 """PyTorch3D's usual ``BlendParams.sigma``: the width of the edge sigmoid, in squared NDC."""
@@ -419,9 +420,9 @@ mip chain (its level 0 is read), or None (the factor alone)."""
 class SoftRenderer:
     """Renders one mesh, normalised per the protocol, through the soft rasteriser.
 
-    The same cameras, image size and supersampling as :class:`geoscaler.render.Renderer`
+    The same cameras, image size and supersampling as :class:`geoscaler.render.renderer.Renderer`
     (``evaluation``); :meth:`rasterize` and :meth:`render` mirror its methods, so a
-    :class:`geoscaler.views.ViewSet` caches soft views as it caches exact ones.
+    :class:`geoscaler.render.views.ViewSet` caches soft views as it caches exact ones.
 
     Args:
         mesh: the mesh; its geometry is fixed for the renderer's lifetime.
@@ -430,7 +431,7 @@ class SoftRenderer:
         settings: sigma, gamma, K, blur radius, depth range.
         reference: returns the reference textures, one per material (default: the protocol's
             reference maps at the evaluation's ``reference_max_size``,
-            :func:`geoscaler.filters.reference_textures`, in linear light).
+            :func:`geoscaler.resize.filters.reference_textures`, in linear light).
         dtype: float type of the fragments.
     """
 

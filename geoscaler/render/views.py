@@ -5,9 +5,10 @@ candidate texture (and, for methods that move them, UVs) is then rendered from t
 G-buffers. A :class:`ViewCache` adds the tap renderer: with the mesh's own UVs a pixel is a
 fixed weighted sum of texels, so each view's texture taps are found once and a render is one
 gather per material (what training steps, validation and the report's scores use). Candidates
-are scored as they would ship: 8-bit textures, compared with :func:`geoscaler.metrics.evaluate`.
+are scored as they would ship: 8-bit textures, compared with
+:func:`geoscaler.render.metrics.evaluate`.
 
-A view set may also be rendered by the paper's soft rasteriser (:class:`geoscaler.soft.
+A view set may also be rendered by the paper's soft rasteriser (:class:`geoscaler.render.soft.
 SoftRenderer`, which mirrors the renderer's methods): :func:`training_views` makes a training
 pool of either kind.
 """
@@ -19,13 +20,13 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import torch
 
-from geoscaler.cameras import Camera, view_set_cameras
 from geoscaler.color import linear_to_srgb, texture_to_linear
-from geoscaler.metrics import evaluate
-from geoscaler.raster import GBuffer
-from geoscaler.render import Renderer
-from geoscaler.soft import SoftFragments, SoftRenderer, SoftSettings
-from geoscaler.texture import MipLayout, MipTexture, TapMatrix, UVFootprint
+from geoscaler.render.cameras import Camera, view_set_cameras
+from geoscaler.render.metrics import evaluate
+from geoscaler.render.raster import GBuffer
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.soft import SoftFragments, SoftRenderer, SoftSettings
+from geoscaler.render.texture import MipLayout, MipTexture, TapMatrix, UVFootprint
 
 Progress = Callable[[int, int], None]
 """Called as ``progress(done, total)`` while long work runs."""
@@ -39,9 +40,9 @@ class ViewSet:
 
     Args:
         renderer: the renderer of the mesh under evaluation, or a soft one (then the
-            "G-buffers" are its :class:`~geoscaler.soft.SoftFragments` and the references
+            "G-buffers" are its :class:`~geoscaler.render.soft.SoftFragments` and the references
             are soft renders).
-        cameras: the views (e.g. :func:`geoscaler.cameras.validation_cameras`).
+        cameras: the views (e.g. :func:`geoscaler.render.cameras.validation_cameras`).
         progress: optional callback while the set is built.
         eager: cache every camera now.
 
@@ -155,7 +156,8 @@ class ViewCache:
         sizes: per material the candidate's texture ``(h, w)`` (None: untextured).
         with_taps: cache the taps (valid only while the UVs stay the mesh's own).
         renderer: renders candidates (default: the view set's); a renderer of the same mesh
-            in another UV layout (:meth:`~geoscaler.render.Renderer.relaid`) renders them in
+            in another UV layout (:meth:`~geoscaler.render.renderer.Renderer.relaid`) renders them
+            in
             that layout on the same G-buffers and references.
     """
 
@@ -353,10 +355,11 @@ def training_views(
     """A training pool over ``cameras``, none cached yet.
 
     Without ``soft``: views of ``renderer`` (with the taps of ``sizes`` when ``with_taps``).
-    With ``soft``: views of a :class:`~geoscaler.soft.SoftRenderer` of the same mesh, device and
+    With ``soft``: views of a :class:`~geoscaler.render.soft.SoftRenderer` of the same mesh, device
+    and
     evaluation, whose references are soft renders of ``renderer``'s reference maps, so that
     candidate and original are rendered the same way, as the paper trains (with taps too:
-    :meth:`~geoscaler.soft.SoftRenderer.pixel_taps`).
+    :meth:`~geoscaler.render.soft.SoftRenderer.pixel_taps`).
     """
     if soft is None:
         return ViewCache(ViewSet(renderer, cameras, eager=False), sizes, with_taps)

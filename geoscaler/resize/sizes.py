@@ -7,7 +7,7 @@ two when ``power_of_two`` (ties up, never above ``max_size``). A rule never enla
 result is at most the input. :class:`SizePlan` holds one rule per texture class (colour,
 normal, data), as gltfpack's ``-ts``/``-tl``/``-tp`` do.
 
-A leaf beside :mod:`geoscaler.texture`: it imports only :mod:`geoscaler.errors` (and numpy).
+A leaf beside :mod:`geoscaler.render.texture`: it imports only :mod:`geoscaler.errors` (and numpy).
 """
 
 from __future__ import annotations

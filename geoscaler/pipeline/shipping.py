@@ -1,9 +1,11 @@
 """The asset as it ships: every map of every material at the size asked for its class.
 
 The job's method makes the base colours (optimised through the renderer, or a filter); every
-other map is resized here by what it holds (:func:`geoscaler.maps.resize_map`: colour in linear
+other map is resized here by what it holds (:func:`geoscaler.resize.maps.resize_map`: colour in
+linear
 light, normals as vectors, data channel by channel) at the size its class's rule gives
-(:class:`geoscaler.sizes.SizePlan`), from the full-resolution original. A texture that several
+(:class:`geoscaler.resize.sizes.SizePlan`), from the full-resolution original. A texture that
+several
 slots or materials show is resized once and stays shared (sharing is by array identity, as
 the loader gives it); one the rule does not shrink ships as it came, bytes and all.
 """
@@ -15,13 +17,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from geoscaler.atlas import Atlas
-from geoscaler.bake import ChartMaps, bake
 from geoscaler.io.slots import slot_info
-from geoscaler.maps import METHOD_NAMES, resize_map, texture_class
 from geoscaler.mesh import Material, SourceImage, TexturedMesh
 from geoscaler.protocol import BYTES_PER_TEXEL
-from geoscaler.sizes import COLOR, SizePlan
+from geoscaler.resize.maps import METHOD_NAMES, resize_map, texture_class
+from geoscaler.resize.sizes import COLOR, SizePlan
+from geoscaler.uv.atlas import Atlas
+from geoscaler.uv.bake import ChartMaps, bake
 
 BASE_COLOR = "baseColorTexture"
 LOSSLESS = "image/png"
@@ -33,7 +35,7 @@ class ShippedMap:
 
     Attributes:
         slots: ``"material/slot"`` of every place that shows it.
-        kind: its class (:data:`geoscaler.sizes.TEXTURE_CLASSES`).
+        kind: its class (:data:`geoscaler.resize.sizes.TEXTURE_CLASSES`).
         method: how it was made ("kept" when its rule does not shrink it).
         size_before, size_after: ``(h, w)`` texels.
         bytes_before: bytes of its encoded image in the input (0: unknown).
@@ -90,10 +92,10 @@ def relayout_maps(
     mesh: TexturedMesh, atlas: Atlas, plan: SizePlan
 ) -> dict[int, tuple[np.ndarray, str]]:
     """Every map other than base colour that the repacked materials read on their first UV
-    set, baked into the new layout at its class's size (:func:`geoscaler.bake.bake`, from
+    set, baked into the new layout at its class's size (:func:`geoscaler.uv.bake.bake`, from
     the full-resolution original): ``id(original array) -> (baked array, method)``. Maps on
     ``TEXCOORD_1`` keep their layout. Normal maps are vectors re-baked as they are: charts
-    of a normal-mapped material only move and scale (:func:`geoscaler.atlas.has_normal_map`),
+    of a normal-mapped material only move and scale (:func:`geoscaler.uv.atlas.has_normal_map`),
     so tangent frames keep their directions."""
     made: dict[int, tuple[np.ndarray, str]] = {}
     for group in atlas.groups:

@@ -17,15 +17,15 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from geoscaler.cameras import Camera
 from geoscaler.color import linear_to_srgb, texture_to_linear
-from geoscaler.devices import mesh_tensors, resolve_device
-from geoscaler.encoded import EncodedMipTexture
-from geoscaler.filters import reference_textures
 from geoscaler.mesh import TexturedMesh
 from geoscaler.protocol import PROTOCOL_EVALUATION, Evaluation
-from geoscaler.raster import GBuffer, rasterize
-from geoscaler.texture import MipTexture, UVFootprint
+from geoscaler.render.cameras import Camera
+from geoscaler.render.devices import mesh_tensors, resolve_device
+from geoscaler.render.encoded import EncodedMipTexture
+from geoscaler.render.raster import GBuffer, rasterize
+from geoscaler.render.texture import MipTexture, UVFootprint
+from geoscaler.resize.filters import reference_textures
 
 
 class Renderer:
@@ -105,7 +105,7 @@ class Renderer:
     def reference_maps(self) -> list[np.ndarray | None]:
         """Per material the ``(H, W, C)`` uint8 map views of the original are rendered from:
         the original, reduced to the evaluation's ``reference_max_size`` where it is longer
-        (:func:`geoscaler.filters.reference_textures`; None for untextured materials), made
+        (:func:`geoscaler.resize.filters.reference_textures`; None for untextured materials), made
         once per renderer (read only)."""
         if self._reference_maps is None:
             maximum = self.evaluation.reference_max_size
@@ -114,7 +114,7 @@ class Renderer:
 
     def reference_textures(self) -> list[MipTexture | None]:
         """Mip chains of :meth:`reference_maps`, made once per renderer (read only), one per
-        distinct map (materials showing one image share it): :class:`~geoscaler.texture.
+        distinct map (materials showing one image share it): :class:`~geoscaler.render.texture.
         EncodedMipTexture`, whose level 0 is the map's own 8-bit texels, so that a large
         original is never held in float32 at full size."""
         if self._reference is None:

@@ -6,7 +6,7 @@ the candidate through the protocol renderer (or the paper's soft rasteriser, can
 original alike: ``training_renderer="soft"``), compares them with renders of the original
 (L2 plus a weighted 1 - SSIM on the sRGB images, foreground only), and steps AdamW with a
 warm-up and cosine decay. It validates the candidate as it ships (gutters filled, 8-bit) on
-a :class:`~geoscaler.validation.Validation` (Q and near/far guards) and keeps the best state
+a :class:`~geoscaler.optim.validation.Validation` (Q and near/far guards) and keeps the best state
 that clears the filters' floor on every set (with ``backtrack``, a candidate that validates
 worse than the best sends the model back to the best at a lower learning rate). It stops at a
 step count, a wall-clock budget or a plateau, and reports progress events that the CLI's
@@ -19,7 +19,7 @@ pool stops growing and the validation sets freeze once :data:`CACHING_SHARE` of 
 and the loop stops early enough for what must follow: the validations still owed and the
 caller's own scoring and export (``reserve``).
 
-Gutters are filled from the UV layout alone (:func:`geoscaler.uvmaps.reachable_texels`), so
+Gutters are filled from the UV layout alone (:func:`geoscaler.uv.uvmaps.reachable_texels`), so
 what ships never depends on which views the machine managed to cache.
 """
 
@@ -33,22 +33,22 @@ from typing import Protocol
 
 import torch
 
-from geoscaler.adamw import AdamW
-from geoscaler.cameras import Camera, sample_training_cameras
 from geoscaler.clock import Budget
 from geoscaler.color import quantize_linear
-from geoscaler.events import Controller, ProgressEvent
-from geoscaler.losses import PerceptualTerm, view_loss
-from geoscaler.majorize import Sloped, majorized_step
+from geoscaler.optim.adamw import AdamW
+from geoscaler.optim.events import Controller, ProgressEvent
+from geoscaler.optim.losses import PerceptualTerm, view_loss
+from geoscaler.optim.majorize import Sloped, majorized_step
+from geoscaler.optim.schedule import Schedule
+from geoscaler.optim.validation import Best as _Best
+from geoscaler.optim.validation import Scores, Validation, ViewCost
 from geoscaler.protocol import RANGE_S
-from geoscaler.render import Renderer
-from geoscaler.schedule import Schedule
-from geoscaler.soft import SoftSettings
-from geoscaler.texture import fill_gutters
-from geoscaler.uvmaps import reachable_masks
-from geoscaler.validation import Best as _Best
-from geoscaler.validation import Scores, Validation, ViewCost
-from geoscaler.views import ViewCache, ViewSet, mip_chains, training_views
+from geoscaler.render.cameras import Camera, sample_training_cameras
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.soft import SoftSettings
+from geoscaler.render.texture import fill_gutters
+from geoscaler.render.views import ViewCache, ViewSet, mip_chains, training_views
+from geoscaler.uv.uvmaps import reachable_masks
 
 WIDE_RANGE = (1.5, 4.2)
 """Distances wider than the protocol's range S on both sides: from the near robustness set
@@ -103,7 +103,7 @@ class OptimizeConfig:
         views_per_step: K training views rendered per step.
         pool_views: training cameras cached up front, drawn from ``distances``.
         distances: camera distance range of the training views, or several ranges taken in
-            turn (:func:`~geoscaler.cameras.sample_training_cameras`).
+            turn (:func:`~geoscaler.render.cameras.sample_training_cameras`).
         lr: peak learning rate; warm-up over ``warmup_steps``, then cosine decay to 0.
         short_run_boost: at most this factor on the learning rate when the time budget allows
             fewer steps than ``steps`` (1: none; :meth:`Schedule.boost`).
@@ -113,8 +113,8 @@ class OptimizeConfig:
             it the candidate is also validated as the validation sets freeze, so that a step
             size that hurts is found early (None: no backtracking).
         majorized_steps: the first steps are majorise-minimise steps
-            (:func:`geoscaler.majorize.majorized_step`), where the model is
-            :class:`~geoscaler.majorize.Sloped` and the loss the plain L2 on cached taps;
+            (:func:`geoscaler.optim.majorize.majorized_step`), where the model is
+            :class:`~geoscaler.optim.majorize.Sloped` and the loss the plain L2 on cached taps;
             AdamW takes the rest.
         weight_decay: AdamW weight decay.
         ssim_weight: weight of ``1 - SSIM`` beside the L2 term.
@@ -126,7 +126,7 @@ class OptimizeConfig:
         seed: seeds the cameras and the view order.
         training_renderer: what renders the training views, candidate and original alike:
             ``"exact"`` (the protocol renderer) or ``"soft"`` (the paper's soft rasteriser,
-            :mod:`geoscaler.soft`, with ``soft`` settings). Validation is always exact.
+            :mod:`geoscaler.render.soft`, with ``soft`` settings). Validation is always exact.
     """
 
     steps: int = 400
@@ -240,7 +240,7 @@ def finish(
 ) -> list[torch.Tensor | None]:
     """The candidate's textures as they will ship, before 8-bit encoding: detached, and the
     gutters (texels outside ``reachable``, per material; None: no gutter filling) filled from
-    their charts (:func:`geoscaler.texture.fill_gutters`)."""
+    their charts (:func:`geoscaler.render.texture.fill_gutters`)."""
     finished = []
     for texture, mask in zip(textures, reachable, strict=True):
         if texture is not None:

@@ -15,11 +15,11 @@ comes back ``(h, w, C)`` uint8. glTF slots fall in three classes (:func:`texture
   vector), the mean is renormalised and encoded again, with ``z >= 0``. A 4th channel is data.
 - ``DATA`` (metallic-roughness, occlusion, ARM, everything else): linear values, each channel
   resized on its own with Pillow's Lanczos, clamped to 0..255: the ``lanczos`` baseline of
-  :mod:`geoscaler.filters`. Channels never mix.
+  :mod:`geoscaler.resize.filters`. Channels never mix.
 
-One implementation of each idea: the sRGB transfer is :mod:`geoscaler.texture`'s (the decode
+One implementation of each idea: the sRGB transfer is :mod:`geoscaler.render.texture`'s (the decode
 as a 256-entry table made with it), the Lanczos and BOX kernels are Pillow's, run through
-:func:`geoscaler.filters.resize_channels` (8-bit planes for data, float32 planes otherwise).
+:func:`geoscaler.resize.filters.resize_channels` (8-bit planes for data, float32 planes otherwise).
 
 Memory: no float copy of a whole map is made. Float planes are decoded ``_BAND`` rows at a
 time and filtered along rows into float32 ``(H, w)`` intermediates, then along columns
@@ -43,9 +43,9 @@ from PIL import Image
 
 from geoscaler.color import linear_to_srgb, srgb_to_linear
 from geoscaler.errors import GeoscalerError
-from geoscaler.filters import resize_channels
 from geoscaler.mesh import check_texture
-from geoscaler.sizes import COLOR, DATA, NORMAL, TEXTURE_CLASSES
+from geoscaler.resize.filters import resize_channels
+from geoscaler.resize.sizes import COLOR, DATA, NORMAL, TEXTURE_CLASSES
 
 __all__ = [
     "COLOR",
@@ -262,7 +262,8 @@ def _separable(
 
 
 def _pillow_plane(plane: np.ndarray, size: tuple[int, int], resample: Image.Resampling):
-    """``(H, W)`` float32 -> ``size`` float32 through :func:`geoscaler.filters.resize_channels`
+    """``(H, W)`` float32 -> ``size`` float32 through
+    :func:`geoscaler.resize.filters.resize_channels`
     (a Pillow 'F' image; a side left unchanged is not filtered)."""
     return resize_channels(plane[..., None], size, resample)[..., 0]
 

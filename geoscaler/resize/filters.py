@@ -24,7 +24,7 @@ from PIL import Image
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import TexturedMesh, check_texture
 from geoscaler.protocol import REFERENCE_MAX_SIZE
-from geoscaler.sizes import SizeRule, check_scale, round_ratio
+from geoscaler.resize.sizes import SizeRule, check_scale, round_ratio
 
 PBD_PATCH = 2
 """Side of PBD's square patches, in low-resolution pixels."""
@@ -53,7 +53,8 @@ def target_size(height: int, width: int, scale: int) -> tuple[int, int]:
     """Size of a texture downsampled by ``scale``: each side divided, rounded to whole texels.
 
     ``h = round(height / scale)``, ``w = round(width / scale)``, halves rounded up
-    (1000 x 750 at 8 -> 125 x 94): :meth:`geoscaler.sizes.SizeRule.size` with the scale alone.
+    (1000 x 750 at 8 -> 125 x 94): :meth:`geoscaler.resize.sizes.SizeRule.size` with the scale
+    alone.
 
     Raises:
         GeoscalerError: ``scale`` is not a whole number >= 2 (bools and floats such as 4.0
@@ -361,7 +362,7 @@ def output_sizes(
     max_size: int | None = REFERENCE_MAX_SIZE,
 ) -> list[tuple[int, int] | None]:
     """Per material the ``(h, w)`` its base-colour map ships at (None where untextured):
-    ``rule`` (a scale, or a :class:`~geoscaler.sizes.SizeRule`) applied to the reference map
+    ``rule`` (a scale, or a :class:`~geoscaler.resize.sizes.SizeRule`) applied to the reference map
     of ``max_size`` (:func:`reference_textures`). The size every method returns.
 
     Raises:

@@ -9,9 +9,9 @@ from dataclasses import dataclass
 
 import torch
 
-from geoscaler.metrics import SSIMLoss
-from geoscaler.texture import MipTexture
-from geoscaler.views import ViewCache
+from geoscaler.render.metrics import SSIMLoss
+from geoscaler.render.texture import MipTexture
+from geoscaler.render.views import ViewCache
 
 
 @dataclass
@@ -65,7 +65,8 @@ def view_loss(
     """:func:`rendering_loss` of a candidate in the cached view ``view``.
 
     The L2 term alone reads the object's pixels only; with the taps they alone are rendered
-    (:meth:`~geoscaler.views.ViewCache.object_colours`), the same mean up to float rounding."""
+    (:meth:`~geoscaler.render.views.ViewCache.object_colours`), the same mean up to float
+    rounding."""
     if uvs is None and cache.with_taps and ssim_weight == 0 and perceptual is None:
         colours = cache.object_colours(view, textures)
         return (colours - cache.object_reference(view)).square().mean()

@@ -1,9 +1,10 @@
 """What a learned method validates on, and the floor its result must clear.
 
-Three view sets, each a :class:`~geoscaler.views.ViewCache` with the taps of the output sizes:
+Three view sets, each a :class:`~geoscaler.render.views.ViewCache` with the taps of the output
+sizes:
 
 - ``Q``: the protocol's validation set (the evaluation's views) in
-  :func:`~geoscaler.cameras.spread_order`, so that any prefix of it covers the sphere;
+  :func:`~geoscaler.render.cameras.spread_order`, so that any prefix of it covers the sphere;
 - ``near`` and ``far``: cameras of the loop's own (:func:`guard_cameras`) at the protocol's
   near and far distances, so that a texture is not sharpened for close views at the cost of
   distant ones. The protocol's near and far sets are not used here: they stay for evaluation.
@@ -29,13 +30,13 @@ import numpy as np
 import torch
 from scipy.special import ndtr, stdtrit
 
-from geoscaler.cameras import Camera, fibonacci_directions, spread_order, view_set_cameras
 from geoscaler.clock import WALL_CLOCK, Clock
 from geoscaler.color import linear_to_texture, texture_to_linear, to_rgb
-from geoscaler.metrics import evaluate, mean_metrics, psnr_fg
 from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, VALIDATION_DISTANCE
-from geoscaler.render import Renderer
-from geoscaler.views import ViewCache, ViewSet, mip_chains
+from geoscaler.render.cameras import Camera, fibonacci_directions, spread_order, view_set_cameras
+from geoscaler.render.metrics import evaluate, mean_metrics, psnr_fg
+from geoscaler.render.renderer import Renderer
+from geoscaler.render.views import ViewCache, ViewSet, mip_chains
 
 GUARD_VIEWS = 20
 """Views of each guard set (near, far): the views on which a sharpened scan fails from far away
@@ -263,7 +264,8 @@ class Validation:
         Args:
             textures: per material the ``(h, w, 3)`` linear texture as it ships (8-bit
                 quantised) or None.
-            uvs: UVs (:meth:`geoscaler.render.Renderer.footprint`), or None for the mesh's own.
+            uvs: UVs (:meth:`geoscaler.render.renderer.Renderer.footprint`), or None for the mesh's
+            own.
         """
         self.freeze()
         mips = mip_chains(textures)

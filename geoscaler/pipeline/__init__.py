@@ -1,0 +1,2 @@
+"""The job: argument checks, the one pipeline every command runs, the downsampling job, result rows
+and the asset as it ships."""
