@@ -65,6 +65,14 @@ bench: setup
 bench-app: setup system-packages
 	$(XVFB) $(PY) benchmarks/bench_app.py
 
+# Re-make docs/results/*.json and docs/results.md: bicubic, Lanczos, direct and direct --uv auto on
+# every development mesh at 4x and 8x, 60 s a learned job, scored on Q, near and far (about an
+# hour on 2 cores). Run it on an idle machine and say so: make results RESULTS_FLAGS=--alone;
+# RESULTS_FLAGS=--render-only re-renders the page from the JSON files alone.
+.PHONY: results
+results: setup
+	$(PY) benchmarks/results.py $(RESULTS_FLAGS)
+
 # Re-make docs/app.png, the README's screenshot, with the GUI test.
 screenshot: setup system-packages
 	GEOSCALER_UPDATE_SCREENSHOT=1 $(XVFB) $(PY) -m pytest -q tests/test_app_gui.py
