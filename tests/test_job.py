@@ -19,7 +19,7 @@ from geoscaler.clock import WALL_CLOCK, ManualClock
 from geoscaler.io import save_mesh
 from geoscaler.methods import MethodOptions, MethodResult, get_method, registry
 from geoscaler.optim.validation import Validation
-from geoscaler.pipeline.job import compare_mesh, no_worse_than_filters
+from geoscaler.pipeline.job import JobBudget, compare_on_validation, no_worse_than_filters
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
 from geoscaler.render.renderer import Renderer
@@ -34,10 +34,9 @@ def cut_short():
     mesh = demo_mesh(subdivisions=8, texture_size=128)
     options = MethodOptions(device="cpu", steps=2, settings={"optimize": ONE_VIEW_POOL})
     renderer = Renderer(mesh, "cpu", Evaluation.quick((0, 31), image_size=128))
-    return compare_mesh(
-        mesh, [4], ["direct", "lanczos"], options=options, renderer=renderer,
-        rows_on="validation",
-    )  # fmt: skip
+    return compare_on_validation(
+        mesh, 4, ["direct", "lanczos"], options=options, renderer=renderer
+    )
 
 
 def test_what_ships_is_what_was_validated(cut_short):
@@ -152,16 +151,16 @@ def budget_spy():
 
 @pytest.mark.parametrize("already_spent", [20.0, 25.0])
 def test_a_whole_job_budget_leaves_the_method_only_what_is_left(budget_spy, already_spent):
-    """With ``started_at`` the budget is the job's wall clock: the method gets the budget less
+    """Under a job's budget the time is the job's wall clock: the method gets the budget less
     everything spent since the job began (here 20 s or 25 s before the comparison, as a slow
     load would), and the reserve for what comes after the job to keep."""
     mesh = demo_mesh(subdivisions=4, texture_size=64)
     options = MethodOptions(device="cpu", time_budget=30.0)
     renderer = Renderer(mesh, "cpu", Evaluation.quick((0,), image_size=64))
     clock = ManualClock(100.0)  # stands still: the job's own work takes no time
-    compare_mesh(
-        mesh, [4], ["budget-spy", "lanczos"], options=options, renderer=renderer,
-        started_at=100.0 - already_spent, reserve=2.0, clock=clock,
+    compare_on_validation(
+        mesh, 4, ["budget-spy", "lanczos"], options=options, renderer=renderer,
+        budget=JobBudget(100.0 - already_spent, reserve=2.0), clock=clock,
     )  # fmt: skip
     assert budget_spy == [(30.0 - already_spent, 2.0)]
 
@@ -173,9 +172,9 @@ def test_a_learned_method_the_budget_cannot_hold_is_not_run_and_lanczos_ships(bu
     mesh = demo_mesh(subdivisions=4, texture_size=64)
     options = MethodOptions(device="cpu", time_budget=30.0)
     renderer = Renderer(mesh, "cpu", Evaluation.quick((0, 31), image_size=64))
-    done = compare_mesh(
-        mesh, [4], ["budget-spy", "lanczos"], options=options, renderer=renderer,
-        started_at=WALL_CLOCK.now() - 40.0, rows_on="validation",
+    done = compare_on_validation(
+        mesh, 4, ["budget-spy", "lanczos"], options=options, renderer=renderer,
+        budget=JobBudget(WALL_CLOCK.now() - 40.0),
     )  # fmt: skip
     assert budget_spy == []  # never called
     result, lanczos = done.outputs["budget-spy", 4], done.outputs["lanczos", 4]

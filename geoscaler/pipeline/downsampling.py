@@ -29,6 +29,7 @@ from geoscaler.optim.events import Controller
 from geoscaler.pipeline.arguments import check_method
 from geoscaler.pipeline.job import (
     Downsampled,
+    JobBudget,
     JobObserver,
     checked_output_sizes,
     downsample,
@@ -222,8 +223,7 @@ def run_job(
         renderer,
         observer,
         controller,
-        job.started_at,
-        EXPORT_RESERVE,
+        JobBudget(job.started_at, EXPORT_RESERVE),
         job.clock,
     )
     (observer or JobObserver()).stage("writing", 0, 1)

@@ -3,13 +3,15 @@
 ``load -> plan outputs -> cache Q once -> run each method under its budget -> score -> gains
 -> export -> report``:
 
-- :func:`compare_mesh` is the core: it caches the validation set Q once (with the texture taps
-  of the output sizes), runs the filters and then the learned methods (which validate on that
-  same cache, under the budget left once Q is cached), scores every output on each view set
-  as it will ship (8-bit, alpha re-attached), and sets each row's gain over bicubic.
-- :func:`prepare` checks a downsampling job and loads its mesh, :func:`run_job` runs it
-  through :func:`compare_mesh` (the method beside bicubic and Lanczos on Q), :func:`export`
-  writes the mesh, :func:`write_report` the JSON report.
+- :class:`_MethodRuns` is the shared core: it checks the job, caches the validation set Q once
+  (with the texture taps of the output sizes) and runs the filters and then the learned methods
+  (which validate on that same cache, under the budget left) at one scale.
+- :func:`compare_mesh` (``compare``, ``bench``) scores every output as it will ship (8-bit,
+  alpha re-attached) on all views of the protocol's sets; :func:`compare_on_validation`
+  (``downsample``, the app) scores them on the validation's Q views, under the whole job's
+  :class:`JobBudget`; both set each row's gain over bicubic.
+- :func:`downsample` runs a method beside bicubic and Lanczos on Q;
+  :mod:`geoscaler.pipeline.downsampling` checks a job, runs it and writes the asset.
 
 A :class:`JobObserver` watches a job (the CLI's progress bars, the app's live state).
 """
@@ -131,50 +133,163 @@ def remaining_budget(budget: float | None, spent: float) -> float | None:
     return None if budget is None else max(budget - spent, 1e-3)
 
 
+@dataclass(frozen=True)
+class JobBudget:
+    """A job's wall-clock budget (``downsample``: the command's, from its start).
+
+    Attributes:
+        started_at: the instant on the job's clock ``options.time_budget`` counts from.
+        reserve: seconds the caller needs after the job's methods and rows (the export).
+    """
+
+    started_at: float
+    reserve: float = 0.0
+
+
+class _MethodRuns:
+    """What both pipelines share: the checked job (mesh, rules, methods, renderer, Q's views)
+    and running every method at one scale, the filters first as the learned methods'
+    baselines."""
+
+    def __init__(
+        self,
+        mesh: TexturedMesh,
+        scales: Sequence[int | SizeRule],
+        methods: Sequence[str],
+        options: MethodOptions | None,
+        renderer: Renderer | None,
+        observer: JobObserver | None,
+        controller: Controller | None,
+        clock: Clock,
+        distances: Sequence[float] = (VALIDATION_DISTANCE,),
+    ):
+        check_geometry(mesh, mesh.source_path or "the mesh")
+        self.mesh, self.controller, self.clock = mesh, controller, clock
+        self.rules = check_rules(scales)
+        self.distances = check_distances(distances)
+        self.listed = [check_method(name) for name in methods]
+        self.options = options or MethodOptions()
+        self.observer = observer or JobObserver()
+        listed = self.listed
+        self.to_run = listed if GAIN_REFERENCE in listed else [*listed, GAIN_REFERENCE]
+        self.renderer = renderer or Renderer(mesh, self.options.device)
+        cap = self.renderer.evaluation.reference_max_size
+        self.sizes = {rule.label: checked_output_sizes(mesh, rule, cap) for rule in self.rules}
+        self.scales = [rule.label for rule in self.rules]
+        self.comparison = Comparison([], {}, device=str(self.renderer.device))
+        self.view_sets = validation_view_sets(self.renderer)
+        self.observer.views_cached(VALIDATION_DISTANCE, self.view_sets["Q"])
+        indices = self.renderer.evaluation.view_indices
+        self.comparison.view_indices = [indices[i] for i in spread_order(len(indices))]
+        self.scores: dict[tuple[float, str, int | str], dict[str, Any]] = {}
+        self.progress = _Stages(self.observer, 0)
+
+    def count_stages(self, distances: Sequence[float]) -> None:
+        """The stages the observer is told of: each method at each scale, run and scored at
+        each distance, and each distance's views."""
+        steps = len(self.scales) * len(self.to_run) * (1 + len(distances))
+        self.progress = _Stages(self.observer, steps + len(distances))
+
+    def run_scale(
+        self, rule: SizeRule, scorings_after: int, budget: JobBudget | None
+    ) -> tuple[dict[str, MethodResult], Validation]:
+        """Every method at ``rule``: the filters, then the learned methods, each validated on
+        the job's views under what is left of ``budget`` (None: each its own budget) and
+        shipping no worse than the filters (:func:`no_worse_than_filters`)."""
+        scale, renderer, clock = rule.label, self.renderer, self.clock
+        filters = [name for name in self.to_run if not is_learned(name)]
+        outputs: dict[str, MethodResult] = {}
+        for name in filters:
+            self.progress.step(f"{name} x{scale}")
+            context = RunContext(renderer, clock=clock)
+            outputs[name] = _run(self.mesh, rule, name, self.options, context, None, self.observer)
+        baselines = {name: outputs[name].textures for name in filters}
+        validation = Validation(self.view_sets, self.sizes[scale], baselines, scorings_after, clock)
+        for name in (name for name in self.to_run if is_learned(name)):
+            self.progress.step(f"{name} x{scale}")
+            outputs[name] = self._run_learned(rule, name, validation, outputs, budget)
+        self.comparison.outputs.update({(name, scale): outputs[name] for name in self.to_run})
+        return outputs, validation
+
+    def _run_learned(
+        self,
+        rule: SizeRule,
+        name: str,
+        validation: Validation,
+        outputs: dict[str, MethodResult],
+        budget: JobBudget | None,
+    ) -> MethodResult:
+        seconds, reserve, clock = self.options.time_budget, 0.0, self.clock
+        if budget is not None:
+            seconds = remaining_budget(seconds, clock.now() - budget.started_at)
+            reserve = budget.reserve
+        context = RunContext(self.renderer, validation, self.controller,
+                             self.observer.on_event, seconds, reserve, clock)  # fmt: skip
+        if budget is not None:
+            self.renderer.reference_textures()  # made once, before a view is priced
+            if not learned_fits(validation, seconds, reserve):
+                return not_run(name, outputs, seconds)
+        method_start = clock.now()
+        result = _run(self.mesh, rule, name, self.options, context, seconds, self.observer)
+        if budget is not None and "first_step_seconds" in result.details:
+            first = method_start - budget.started_at + result.details["first_step_seconds"]
+            result.details["first_step_after_start"] = round(first, 3)
+        return no_worse_than_filters(name, result, validation, outputs)
+
+    def finish(self, distances: Sequence[float]) -> Comparison:
+        """The rows with their gains over bicubic, ordered by distance, scale, then the
+        listed methods; Q's foreground counts."""
+        scores = self.scores
+        for (distance, name, scale), row in scores.items():
+            reference = scores[distance, GAIN_REFERENCE, scale]["psnr_fg"]
+            row["gain_db"] = 0.0 if name == GAIN_REFERENCE else row["psnr_fg"] - reference
+        comparison = self.comparison
+        comparison.rows = [
+            scores[distance, name, scale]
+            for distance in distances
+            for scale in self.scales
+            for name in self.listed
+        ]
+        q = self.view_sets["Q"]
+        if len(q):
+            counts = q.foreground[: len(q)].sum(dim=(1, 2)).cpu().numpy()
+            comparison.foreground.setdefault(VALIDATION_DISTANCE, counts)
+        self.progress.done()
+        return comparison
+
+
 def compare_mesh(
     mesh: TexturedMesh,
-    scales: Sequence[int],
+    scales: Sequence[int | SizeRule],
     methods: Sequence[str],
     distances: Sequence[float] = (VALIDATION_DISTANCE,),
     options: MethodOptions | None = None,
     renderer: Renderer | None = None,
     observer: JobObserver | None = None,
     controller: Controller | None = None,
-    started_at: float | None = None,
-    reserve: float = 0.0,
-    rows_on: str = "protocol",
     clock: Clock = WALL_CLOCK,
 ) -> Comparison:
-    """Run ``methods`` at every scale and score them.
+    """Run ``methods`` at every scale and score them on all views of the protocol's sets at
+    ``distances`` (``compare``, ``bench``).
 
     The filters run first; they are the *baselines* of the learned methods, which validate on a
-    :class:`~geoscaler.optim.validation.Validation` (Q and near/far guards, cached while they train)
-    and ship their result only where it clears the best baseline on every validation set
-    (:func:`no_worse_than_filters`). Under a job-wide budget a learned method that cannot take
-    a step in what is left is not run, and its Lanczos start ships (:func:`learned_fits`).
+    :class:`~geoscaler.optim.validation.Validation` (Q and near/far guards, cached while they
+    train) and ship their result only where it clears the best baseline on every validation
+    set (:func:`no_worse_than_filters`). Each learned method's ``options.time_budget`` counts
+    from its own start.
 
     Args:
         mesh: the mesh; its textures are the originals.
-        scales: whole reduction factors >= 2 (e.g. ``[4, 8]``).
+        scales: whole reduction factors >= 2 (e.g. ``[4, 8]``) or size rules.
         methods: registered method names, in the order rows are wanted; bicubic runs for the
             gains whether listed or not.
         distances: camera distances of the protocol view sets scored (2.4 is Q; 1.5 near,
-            4.0 far); ``rows_on="validation"`` scores Q only.
+            4.0 far).
         options: settings of every method; ``options.device`` also renders the views.
         renderer: the mesh's renderer; its ``evaluation`` says the image size and the views
             standing for each set (default: protocol 1 on ``options.device``).
         observer: watches the job.
         controller: pauses or stops the learned methods (their best state so far is kept).
-        started_at: the instant on ``clock`` from which ``options.time_budget`` is the wall
-            clock of the whole job (``downsample``: the command's start); a learned method then
-            gets what is left, and keeps ``reserve`` seconds and the time of the rows' scoring
-            for after it. None (``compare``, ``bench``): each learned method's budget counts
-            from its own start.
-        reserve: seconds the caller needs after this returns (``downsample``: the export).
-        rows_on: ``"protocol"``: rows on the protocol's view sets at ``distances`` (all their
-            views, after the methods); ``"validation"``: rows on the validation's Q views, the
-            ones the shipped result was chosen on (a downsampling job's report, inside its
-            budget).
         clock: where the job and its methods read the time.
 
     Returns:
@@ -184,91 +299,46 @@ def compare_mesh(
         GeoscalerError: an unknown method, a bad scale or distance, a scale too large for a
             texture, or a method's own error.
     """
-    check_geometry(mesh, mesh.source_path or "the mesh")
-    rules = check_rules(scales)
-    distances = [VALIDATION_DISTANCE] if rows_on == "validation" else check_distances(distances)
-    listed = [check_method(name) for name in methods]
-    options = options or MethodOptions()
-    observer = observer or JobObserver()
-    to_run = listed if GAIN_REFERENCE in listed else [*listed, GAIN_REFERENCE]
-    filters = [name for name in to_run if not is_learned(name)]
-    learned = [name for name in to_run if is_learned(name)]
-    renderer = renderer or Renderer(mesh, options.device)
-    cap = renderer.evaluation.reference_max_size
-    sizes = {rule.label: checked_output_sizes(mesh, rule, cap) for rule in rules}
-    scales = [rule.label for rule in rules]
-    comparison = Comparison([], {}, device=str(renderer.device))
-    view_sets = validation_view_sets(renderer)
-    observer.views_cached(VALIDATION_DISTANCE, view_sets["Q"])
-    q_order = spread_order(len(renderer.evaluation.view_indices))
-    comparison.view_indices = [renderer.evaluation.view_indices[i] for i in q_order]
-    steps = len(scales) * len(to_run) * (1 + len(distances))
-    progress = _Stages(observer, steps + len(distances))
-    scores: dict[tuple[float, str, int | str], dict[str, Any]] = {}
-    for rule, scale in zip(rules, scales, strict=True):
-        outputs: dict[str, MethodResult] = {}
-        for name in filters:
-            progress.step(f"{name} x{scale}")
-            filter_context = RunContext(renderer, clock=clock)
-            outputs[name] = _run(mesh, rule, name, options, filter_context, None, observer)
-        scorings_after = len(to_run) if rows_on == "validation" else 0
-        baselines = {name: outputs[name].textures for name in filters}
-        validation = Validation(view_sets, sizes[scale], baselines, scorings_after, clock)
-        for name in learned:
-            progress.step(f"{name} x{scale}")
-            budget = options.time_budget
-            if started_at is not None:
-                budget = remaining_budget(budget, clock.now() - started_at)
-            context = RunContext(
-                renderer, validation, controller, observer.on_event, budget, reserve, clock
-            )
-            if started_at is not None:
-                renderer.reference_textures()  # made once, before a view is priced
-                if not learned_fits(validation, budget, reserve):
-                    outputs[name] = not_run(name, outputs, budget)
-                    continue
-            method_start = clock.now()
-            result = _run(mesh, rule, name, options, context, budget, observer)
-            if started_at is not None and "first_step_seconds" in result.details:
-                first = method_start - started_at + result.details["first_step_seconds"]
-                result.details["first_step_after_start"] = round(first, 3)
-            outputs[name] = no_worse_than_filters(name, result, validation, outputs)
-        if rows_on == "validation":
-            _cache_for_rows(validation, options.time_budget, started_at, reserve)
-            for name in to_run:
-                progress.step(f"scoring {name} x{scale}")
-                row = validation_row(outputs[name], name, scale, validation)
-                scores[VALIDATION_DISTANCE, name, scale] = row
-                observer.scored(row)
-        comparison.outputs.update({(name, scale): outputs[name] for name in to_run})
-    if rows_on == "protocol":
-        _score_protocol_sets(
-            comparison,
-            mesh,
-            scales,
-            to_run,
-            distances,
-            view_sets["Q"],
-            progress,
-            observer,
-            scores,
-            sizes,
-        )
-    for (distance, name, scale), row in scores.items():
-        reference = scores[distance, GAIN_REFERENCE, scale]["psnr_fg"]
-        row["gain_db"] = 0.0 if name == GAIN_REFERENCE else row["psnr_fg"] - reference
-    comparison.rows = [
-        scores[distance, name, scale]
-        for distance in distances
-        for scale in scales
-        for name in listed
-    ]
-    q = view_sets["Q"]
-    if len(q):
-        counts = q.foreground[: len(q)].sum(dim=(1, 2)).cpu().numpy()
-        comparison.foreground.setdefault(VALIDATION_DISTANCE, counts)
-    progress.done()
-    return comparison
+    runs = _MethodRuns(
+        mesh, scales, methods, options, renderer, observer, controller, clock, distances
+    )
+    runs.count_stages(runs.distances)
+    for rule in runs.rules:
+        runs.run_scale(rule, scorings_after=0, budget=None)
+    _score_protocol_sets(runs, runs.distances)
+    return runs.finish(runs.distances)
+
+
+def compare_on_validation(
+    mesh: TexturedMesh,
+    scale: int | SizeRule,
+    methods: Sequence[str],
+    options: MethodOptions | None = None,
+    renderer: Renderer | None = None,
+    observer: JobObserver | None = None,
+    controller: Controller | None = None,
+    budget: JobBudget | None = None,
+    clock: Clock = WALL_CLOCK,
+) -> Comparison:
+    """Run ``methods`` at ``scale`` and score them on the validation's Q views, the ones the
+    shipped result was chosen on (a downsampling job's report, inside its budget).
+
+    As :func:`compare_mesh`, but under the whole job's ``budget`` (None: each learned method's
+    own from its start): a learned method gets what is left of it and keeps the reserve and the
+    time of the rows' scoring for after it; one that cannot take a step in what is left is not
+    run, and its Lanczos start ships (:func:`learned_fits`).
+    """
+    runs = _MethodRuns(mesh, [scale], methods, options, renderer, observer, controller, clock)
+    runs.count_stages([VALIDATION_DISTANCE])
+    (rule,) = runs.rules
+    outputs, validation = runs.run_scale(rule, len(runs.to_run), budget)
+    _cache_for_rows(validation, runs.options.time_budget, budget)
+    for name in runs.to_run:
+        runs.progress.step(f"scoring {name} x{rule.label}")
+        row = validation_row(outputs[name], name, rule.label, validation)
+        runs.scores[VALIDATION_DISTANCE, name, rule.label] = row
+        runs.observer.scored(row)
+    return runs.finish([VALIDATION_DISTANCE])
 
 
 class _Stages:
@@ -320,40 +390,31 @@ def not_run(name: str, filters: dict[str, MethodResult], budget: float) -> Metho
 
 
 def _cache_for_rows(
-    validation: Validation, budget: float | None, started_at: float | None, reserve: float
+    validation: Validation, seconds: float | None, budget: JobBudget | None
 ) -> None:
     """Before the rows of a job whose learned method did not validate (or that has none):
-    cache the validation views (all of them, or under a budget those that leave time for the
-    scoring and ``reserve``). The rows score Q alone, so only Q must reach its least views."""
+    cache the validation views (all of them, or under the job's budget of ``seconds`` those
+    that leave time for the scoring and the reserve). The rows score Q alone, so only Q must
+    reach its least views."""
     if validation.frozen:
         return
     least = {"Q": MIN_FROZEN["Q"]}
-    if budget is None or started_at is None:
+    if seconds is None or budget is None:
         validation.cache_all()
     else:
-        end = started_at + budget - reserve
+        end = budget.started_at + seconds - budget.reserve
         while validation.clock.now() + 2 * validation.seconds_needed(0, True, least=least) < end:
             if not validation.cache_next():
                 break
     validation.freeze(least)
 
 
-def _score_protocol_sets(
-    comparison: Comparison,
-    mesh: TexturedMesh,
-    scales: Sequence[int | str],
-    names: Sequence[str],
-    distances: Sequence[float],
-    q: ViewSet,
-    progress: _Stages,
-    observer: JobObserver,
-    scores: dict[tuple[float, str, int | str], dict[str, Any]],
-    sizes: dict[int | str, list[tuple[int, int] | None]],
-) -> None:
+def _score_protocol_sets(runs: _MethodRuns, distances: Sequence[float]) -> None:
     """Score every output on all views of the protocol's sets at ``distances`` (Q's views are
     the validation's, completed here)."""
+    q, observer = runs.view_sets["Q"], runs.observer
     for distance in distances:
-        progress.step(f"rendering the views at {distance:g}")
+        runs.progress.step(f"rendering the views at {distance:g}")
         if distance == VALIDATION_DISTANCE:
             while q.cache_next():
                 observer.stage("caching Q", len(q), len(q.cameras))
@@ -361,15 +422,16 @@ def _score_protocol_sets(
         else:  # the same directions, in the same order as Q's
             cameras = view_set_cameras(distance, q.renderer.evaluation)
             views = ViewSet(q.renderer, [cameras[i] for i in spread_order(len(cameras))])
-        comparison.foreground[distance] = views.foreground.sum(dim=(1, 2)).cpu().numpy()
+        runs.comparison.foreground[distance] = views.foreground.sum(dim=(1, 2)).cpu().numpy()
         if views is not q:  # Q was handed over as the job started
             observer.views_cached(distance, views)
-        for scale in scales:
-            cache = ViewCache(views, sizes[scale], with_taps=True)
-            for name in names:
-                progress.step(f"scoring {name} x{scale} at {distance:g}")
-                row = protocol_row(comparison.outputs[name, scale], name, scale, distance, cache)
-                scores[distance, name, scale] = row
+        for scale in runs.scales:
+            cache = ViewCache(views, runs.sizes[scale], with_taps=True)
+            for name in runs.to_run:
+                runs.progress.step(f"scoring {name} x{scale} at {distance:g}")
+                output = runs.comparison.outputs[name, scale]
+                row = protocol_row(output, name, scale, distance, cache)
+                runs.scores[distance, name, scale] = row
                 observer.scored(row)
 
 
@@ -473,32 +535,20 @@ def downsample(
     renderer: Renderer | None = None,
     observer: JobObserver | None = None,
     controller: Controller | None = None,
-    started_at: float | None = None,
-    reserve: float = 0.0,
+    budget: JobBudget | None = None,
     clock: Clock = WALL_CLOCK,
 ) -> Downsampled:
     """Run ``method`` on ``mesh`` at ``scale`` (a whole number or a :class:`SizeRule`) and
     score it, bicubic and Lanczos on Q.
 
-    ``started_at``, ``reserve``, ``clock``: as :func:`compare_mesh` (``started_at`` None: the
-    budget counts from the caching of Q).
+    ``budget``, ``clock``: as :func:`compare_on_validation` (``budget`` None: the method's
+    budget counts from its own start).
     """
     methods = [method, *(name for name in REPORT_BASELINES if name != method)]
-    (rule,) = check_rules([scale])
-    comparison = compare_mesh(
-        mesh,
-        [rule],
-        methods,
-        [VALIDATION_DISTANCE],
-        options,
-        renderer,
-        observer,
-        controller,
-        started_at,
-        reserve,
-        rows_on="validation",
-        clock=clock,
+    comparison = compare_on_validation(
+        mesh, scale, methods, options, renderer, observer, controller, budget, clock
     )
+    (rule,) = check_rules([scale])
     result = comparison.outputs[method, rule.label]
     details = dict(result.details)
     if is_learned(method):
