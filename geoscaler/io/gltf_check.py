@@ -20,6 +20,7 @@ from __future__ import annotations
 import base64
 import binascii
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -80,65 +81,32 @@ def _is_number(value: Any) -> bool:
 
 def check_structure(doc: dict, path: Path) -> None:
     """Hold the JSON document to the shape the glTF 2.0 schema gives it (see module doc)."""
+    _check_arrays(doc, path)
+    _check_extension_lists(doc, path)
+    if not isinstance(doc.get("asset"), dict):
+        raise _refuse(path, "'asset'", "is missing or not an object")
+    ref = _Refs(doc, path)
+    _check_scenes(doc, path, ref)
+    _check_nodes(doc, path, ref)
+    for name, check in _ITEM_CHECKS:  # the table is below the checks it names
+        for i, item in enumerate(_items(doc, name)):
+            check(item, path, f"{name}[{i}]", ref)
+
+
+def _check_arrays(doc: dict, path: Path) -> None:
+    """Every top-level array is a list of objects."""
     for name in _ARRAYS:
         value = doc.get(name, [])
         if not isinstance(value, list) or not all(isinstance(item, dict) for item in value):
             raise _refuse(path, f"'{name}'", "is not a list of objects")
+
+
+def _check_extension_lists(doc: dict, path: Path) -> None:
+    """``extensionsUsed`` and ``extensionsRequired`` are lists of names."""
     for name in ("extensionsUsed", "extensionsRequired"):
         value = doc.get(name, [])
         if not isinstance(value, list) or not all(isinstance(item, str) for item in value):
             raise _refuse(path, f"'{name}'", "is not a list of extension names")
-    if not isinstance(doc.get("asset"), dict):
-        raise _refuse(path, "'asset'", "is missing or not an object")
-    ref = _Refs(doc, path)
-    if "scene" in doc:
-        ref.index(doc["scene"], "scenes", "'scene'")
-    for s, scene in enumerate(_items(doc, "scenes")):
-        for node in _list(scene.get("nodes", []), path, f"scenes[{s}].nodes"):
-            ref.index(node, "nodes", f"scenes[{s}].nodes")
-    _check_nodes(doc, path, ref)
-    for m, mesh in enumerate(_items(doc, "meshes")):
-        primitives = _list(mesh.get("primitives"), path, f"meshes[{m}].primitives")
-        for p, primitive in enumerate(primitives):
-            where = f"meshes[{m}].primitives[{p}]"
-            if not isinstance(primitive, dict) or not isinstance(primitive.get("attributes"), dict):
-                raise _refuse(path, where, "has no 'attributes' object")
-            for name, accessor in primitive["attributes"].items():
-                ref.index(accessor, "accessors", f"{where}.attributes.{name}")
-            for key, array in (("indices", "accessors"), ("material", "materials")):
-                if key in primitive:
-                    ref.index(primitive[key], array, f"{where}.{key}")
-            mode = primitive.get("mode", 4)
-            if not _is_int(mode) or mode not in range(7):
-                raise _refuse(path, f"{where}.mode", f"is {primitive['mode']!r}, not 0 to 6")
-    for a, accessor in enumerate(_items(doc, "accessors")):
-        _check_accessor_fields(accessor, path, f"accessors[{a}]", ref)
-    for v, view in enumerate(_items(doc, "bufferViews")):
-        ref.index(view.get("buffer"), "buffers", f"bufferViews[{v}].buffer")
-        for key in ("byteOffset", "byteLength", "byteStride"):
-            if key in view or key == "byteLength":
-                ref.whole(view.get(key), f"bufferViews[{v}].{key}", low=int(key == "byteLength"))
-    for b, buffer in enumerate(_items(doc, "buffers")):
-        ref.whole(buffer.get("byteLength"), f"buffers[{b}].byteLength", low=1)
-    for i, image in enumerate(_items(doc, "images")):
-        if "bufferView" in image:
-            ref.index(image["bufferView"], "bufferViews", f"images[{i}].bufferView")
-        elif not isinstance(image.get("uri"), str):
-            raise _refuse(path, f"images[{i}]", "has neither a 'uri' nor a 'bufferView'")
-    for t, texture in enumerate(_items(doc, "textures")):
-        for key, array in (("source", "images"), ("sampler", "samplers")):
-            if key in texture:
-                ref.index(texture[key], array, f"textures[{t}].{key}")
-        for name, extension in _dict(texture.get("extensions", {}), path, f"textures[{t}]"):
-            if isinstance(extension, dict) and "source" in extension:
-                ref.index(extension["source"], "images", f"textures[{t}].extensions.{name}")
-    for s, sampler in enumerate(_items(doc, "samplers")):
-        for key, allowed in (("magFilter", _FILTERS), ("minFilter", _FILTERS)):
-            ref.enum(sampler, key, allowed, f"samplers[{s}]")
-        for key in ("wrapS", "wrapT"):
-            ref.enum(sampler, key, _WRAPS, f"samplers[{s}]")
-    for m, material in enumerate(_items(doc, "materials")):
-        _check_material(material, path, f"materials[{m}]", ref)
 
 
 class _Refs:
@@ -182,27 +150,52 @@ def _dict(value: Any, path: Path, where: str) -> list[tuple[str, Any]]:
     return list(value.items())
 
 
+def _check_scenes(doc: dict, path: Path, ref: _Refs) -> None:
+    """The default scene and the nodes each scene lists are indices of existing items."""
+    if "scene" in doc:
+        ref.index(doc["scene"], "scenes", "'scene'")
+    for s, scene in enumerate(_items(doc, "scenes")):
+        for node in _list(scene.get("nodes", []), path, f"scenes[{s}].nodes"):
+            ref.index(node, "nodes", f"scenes[{s}].nodes")
+
+
 def _check_nodes(doc: dict, path: Path, ref: _Refs) -> None:
     """Indices, transforms, one parent per node, no cycle; each scene lists roots, once."""
     nodes = _items(doc, "nodes")
     parent: dict[int, int] = {}
     for n, node in enumerate(nodes):
-        where = f"nodes[{n}]"
-        if "mesh" in node:
-            ref.index(node["mesh"], "meshes", f"{where}.mesh")
-        for child in _list(node.get("children", []), path, f"{where}.children"):
-            ref.index(child, "nodes", f"{where}.children")
-            if child == n:
-                raise _refuse(path, f"{where}.children", "lists the node itself (a cycle)")
-            if parent.get(child) == n:
-                raise _refuse(path, f"{where}.children", f"lists node {child} twice")
-            if child in parent:
-                raise _refuse(path, f"{where}.children", f"gives node {child} a second parent")
-            parent[child] = n
-        for key, count in (("matrix", 16), ("translation", 3), ("rotation", 4), ("scale", 3)):
-            if key in node:
-                ref.numbers(node[key], count, f"{where}.{key}")
+        _check_node(node, n, path, ref, parent)
     _check_acyclic(nodes, parent, path)
+    _check_scene_roots(doc, parent, path)
+
+
+def _check_node(node: dict, n: int, path: Path, ref: _Refs, parent: dict[int, int]) -> None:
+    """Node ``n``'s mesh, children (entered in ``parent``) and transform."""
+    where = f"nodes[{n}]"
+    if "mesh" in node:
+        ref.index(node["mesh"], "meshes", f"{where}.mesh")
+    _check_children(node, n, path, ref, parent)
+    for key, count in (("matrix", 16), ("translation", 3), ("rotation", 4), ("scale", 3)):
+        if key in node:
+            ref.numbers(node[key], count, f"{where}.{key}")
+
+
+def _check_children(node: dict, n: int, path: Path, ref: _Refs, parent: dict[int, int]) -> None:
+    """Node ``n``'s children exist, once each, and have no other parent (entered in ``parent``)."""
+    where = f"nodes[{n}].children"
+    for child in _list(node.get("children", []), path, where):
+        ref.index(child, "nodes", where)
+        if child == n:
+            raise _refuse(path, where, "lists the node itself (a cycle)")
+        if parent.get(child) == n:
+            raise _refuse(path, where, f"lists node {child} twice")
+        if child in parent:
+            raise _refuse(path, where, f"gives node {child} a second parent")
+        parent[child] = n
+
+
+def _check_scene_roots(doc: dict, parent: dict[int, int], path: Path) -> None:
+    """Each scene lists root nodes only, each once."""
     for s, scene in enumerate(_items(doc, "scenes")):
         listed: set[int] = set()
         for node in scene.get("nodes", []):
@@ -250,10 +243,84 @@ def _check_accessor_fields(accessor: dict, path: Path, where: str, ref: _Refs) -
             ref.numbers(accessor[key], size, f"{where}.{key}")
 
 
+def _check_mesh(mesh: dict, path: Path, where: str, ref: _Refs) -> None:
+    """A mesh's primitives: a list of primitives, each checked."""
+    primitives = _list(mesh.get("primitives"), path, f"{where}.primitives")
+    for p, primitive in enumerate(primitives):
+        _check_primitive_fields(primitive, path, f"{where}.primitives[{p}]", ref)
+
+
+def _check_primitive_fields(primitive: Any, path: Path, where: str, ref: _Refs) -> None:
+    """A primitive's attributes, indices and material are indices; its mode is 0 to 6."""
+    if not isinstance(primitive, dict) or not isinstance(primitive.get("attributes"), dict):
+        raise _refuse(path, where, "has no 'attributes' object")
+    for name, accessor in primitive["attributes"].items():
+        ref.index(accessor, "accessors", f"{where}.attributes.{name}")
+    for key, array in (("indices", "accessors"), ("material", "materials")):
+        if key in primitive:
+            ref.index(primitive[key], array, f"{where}.{key}")
+    mode = primitive.get("mode", 4)
+    if not _is_int(mode) or mode not in range(7):
+        raise _refuse(path, f"{where}.mode", f"is {primitive['mode']!r}, not 0 to 6")
+
+
+def _check_buffer_view_fields(view: dict, path: Path, where: str, ref: _Refs) -> None:
+    """A buffer view's buffer is an index; its offset, length and stride whole numbers."""
+    ref.index(view.get("buffer"), "buffers", f"{where}.buffer")
+    for key in ("byteOffset", "byteLength", "byteStride"):
+        if key in view or key == "byteLength":
+            ref.whole(view.get(key), f"{where}.{key}", low=int(key == "byteLength"))
+
+
+def _check_buffer_fields(buffer: dict, path: Path, where: str, ref: _Refs) -> None:
+    """A buffer's length is a whole number >= 1."""
+    ref.whole(buffer.get("byteLength"), f"{where}.byteLength", low=1)
+
+
+def _check_image_fields(image: dict, path: Path, where: str, ref: _Refs) -> None:
+    """An image has a buffer view (an index) or a URI."""
+    if "bufferView" in image:
+        ref.index(image["bufferView"], "bufferViews", f"{where}.bufferView")
+    elif not isinstance(image.get("uri"), str):
+        raise _refuse(path, where, "has neither a 'uri' nor a 'bufferView'")
+
+
+def _check_texture_fields(texture: dict, path: Path, where: str, ref: _Refs) -> None:
+    """A texture's source and sampler, and its extensions' sources, are indices."""
+    for key, array in (("source", "images"), ("sampler", "samplers")):
+        if key in texture:
+            ref.index(texture[key], array, f"{where}.{key}")
+    for name, extension in _dict(texture.get("extensions", {}), path, where):
+        if isinstance(extension, dict) and "source" in extension:
+            ref.index(extension["source"], "images", f"{where}.extensions.{name}")
+
+
+_SAMPLER_ENUMS = (
+    ("magFilter", _FILTERS), ("minFilter", _FILTERS), ("wrapS", _WRAPS), ("wrapT", _WRAPS)
+)  # fmt: skip
+
+
+def _check_sampler_fields(sampler: dict, path: Path, where: str, ref: _Refs) -> None:
+    """A sampler's filters and wraps are valid enum values."""
+    for key, allowed in _SAMPLER_ENUMS:
+        ref.enum(sampler, key, allowed, where)
+
+
 def _check_material(material: dict, path: Path, where: str, ref: _Refs) -> None:
+    """A material's factors, enums and every texture reference it holds."""
     pbr = material.get("pbrMetallicRoughness", {})
     if not isinstance(pbr, dict):
         raise _refuse(path, f"{where}.pbrMetallicRoughness", "is not an object")
+    _check_factors(material, pbr, where, ref)
+    ref.enum(material, "alphaMode", _ALPHA_MODES, where)
+    ref.enum(material, "doubleSided", {True, False}, where)
+    for here, info in _texture_infos(material, pbr, path, where):
+        if info is not None:
+            _check_texture_info(info, path, here, ref)
+
+
+def _check_factors(material: dict, pbr: dict, where: str, ref: _Refs) -> None:
+    """A material's colour, metallic, roughness and emissive factors and alpha cutoff."""
     if "baseColorFactor" in pbr:
         ref.numbers(pbr["baseColorFactor"], 4, f"{where}.baseColorFactor", 0, 1)
     for key in ("metallicFactor", "roughnessFactor"):
@@ -263,8 +330,11 @@ def _check_material(material: dict, path: Path, where: str, ref: _Refs) -> None:
         ref.numbers(material["emissiveFactor"], 3, f"{where}.emissiveFactor", 0, 1)
     if "alphaCutoff" in material:
         ref.numbers([material["alphaCutoff"]], 1, f"{where}.alphaCutoff", 0)
-    ref.enum(material, "alphaMode", _ALPHA_MODES, where)
-    ref.enum(material, "doubleSided", {True, False}, where)
+
+
+def _texture_infos(material: dict, pbr: dict, path: Path, where: str) -> list[tuple[str, Any]]:
+    """``(place, texture info or None)`` of the core texture slots and of every extension's
+    ``*Texture`` key."""
     infos = [
         (f"{where}.{keys[-1]}", pbr.get(keys[1]) if len(keys) == 2 else material.get(keys[0]))
         for keys in _TEXTURE_INFOS
@@ -273,17 +343,32 @@ def _check_material(material: dict, path: Path, where: str, ref: _Refs) -> None:
         for key, value in extension.items() if isinstance(extension, dict) else ():
             if key.endswith("Texture"):
                 infos.append((f"{where}.extensions.{name}.{key}", value))
-    for here, info in infos:
-        if info is None:
-            continue
-        if not isinstance(info, dict):
-            raise _refuse(path, here, "is not a texture object")
-        ref.index(info.get("index"), "textures", f"{here}.index")
-        ref.whole(info.get("texCoord", 0), f"{here}.texCoord")
-        for key in ("scale", "strength"):
-            if key in info:
-                high = 1 if key == "strength" else math.inf
-                ref.numbers([info[key]], 1, f"{here}.{key}", 0 if high == 1 else -math.inf, high)
+    return infos
+
+
+def _check_texture_info(info: Any, path: Path, here: str, ref: _Refs) -> None:
+    """A texture info is an object with a texture index, a UV set and in-range numbers."""
+    if not isinstance(info, dict):
+        raise _refuse(path, here, "is not a texture object")
+    ref.index(info.get("index"), "textures", f"{here}.index")
+    ref.whole(info.get("texCoord", 0), f"{here}.texCoord")
+    for key in ("scale", "strength"):
+        if key in info:
+            high = 1 if key == "strength" else math.inf
+            ref.numbers([info[key]], 1, f"{here}.{key}", 0 if high == 1 else -math.inf, high)
+
+
+_ITEM_CHECKS: tuple[tuple[str, Callable[[dict, Path, str, _Refs], None]], ...] = (
+    ("meshes", _check_mesh),
+    ("accessors", _check_accessor_fields),
+    ("bufferViews", _check_buffer_view_fields),
+    ("buffers", _check_buffer_fields),
+    ("images", _check_image_fields),
+    ("textures", _check_texture_fields),
+    ("samplers", _check_sampler_fields),
+    ("materials", _check_material),
+)
+"""The top-level arrays whose items :func:`check_structure` checks one by one, in order."""
 
 
 # ----------------------------------------------------------------------------- data
