@@ -12,7 +12,8 @@ way `geoscaler compare` and `geoscaler bench` score them (protocol 1: every view
 far, references capped at 2048, each learned method under the same budget, what shipped after
 the job's validation). It then writes one JSON per table (one per scale) into ``--out``, each
 with a header (commit, date, machine, load, command, wall time), and renders the Markdown page
-from those JSON files only.
+from those JSON files only; with the default ``--markdown`` it also fills the README's summary
+between ``<!-- results:start -->`` and ``<!-- results:end -->``.
 
 Usage:
     python benchmarks/results.py [--alone] [--device auto] [--budget 60]
@@ -48,6 +49,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
 OUT = ROOT / "docs" / "results"
 MARKDOWN = ROOT / "docs" / "results.md"
+README = ROOT / "README.md"
 
 SETS = {"Q": 2.4, "near": 1.5, "far": 4.0}
 """The protocol's view sets and their distances, in the order tables show them."""
@@ -351,7 +353,60 @@ def render_markdown(documents: list[dict], where: str = "`results/`") -> str:
     return "\n".join(lines) + "\n"
 
 
-def render(out: Path, markdown: Path) -> Path:
+def render_summary(documents: list[dict], page: str = "docs/results.md") -> str:
+    """The README's summary: per scale and view set, the mean over the meshes (bicubic's
+    PSNR-fg, each method's gain over it) and the worst mesh of each method, and the facts
+    the tables stand on."""
+    documents = sorted(documents, key=lambda d: d["header"]["scale"])
+    header, methods = documents[0]["header"], documents[0]["header"]["methods"]
+    learned = [m for m in methods if m != "bicubic"]
+    lines = [
+        "| scale | set | bicubic PSNR-fg | " + " | ".join(learned) + " |",
+        "| --- | --- |" + " ---: |" * (1 + len(learned)),
+    ]
+    for document in documents:
+        index = {(r["mesh"], r["method"], r["set"]): r for r in document["rows"]}
+        for name in document["header"]["sets"]:
+            column = {
+                m: [index.get((mesh, m, name)) for mesh in document["meshes"]] for m in methods
+            }
+            if not any(column["bicubic"]):
+                continue
+            cells = [_summary_cells(column["bicubic"])[0]]
+            for method in learned:
+                present = [r for r in column[method] if r is not None]
+                if not present:
+                    cells.append("-")
+                    continue
+                worst = min(present, key=lambda r: r["gain_db"])
+                mean = statistics.fmean(r["gain_db"] for r in present)
+                cells.append(f"{mean:+.2f} (worst {worst['gain_db']:+.2f}, {worst['mesh']})")
+            scale = document["header"]["scale"]
+            lines.append(f"| {scale}x | {name} | " + " | ".join(cells) + " |")
+    alone = "run alone (`--alone`)" if header["alone"]["asserted"] else "not said to run alone"
+    lines += [
+        "",
+        f"Mean gain over bicubic in dB on {len(documents[0]['meshes'])} development meshes, the "
+        f"worst mesh in brackets; {header['budget_s']:g} s per learned job. Commit "
+        f"`{header['commit']}`{' (dirty tree)' if header['dirty'] else ''}, {header['date'][:10]}, "
+        f"{header['machine']['cores']} cores, {header['machine']['device']}, {alone} (load "
+        f"{header['alone']['load_start'][0]:g} at the start). Every mesh, with PSNR-fg: "
+        f"[{page}]({page}).",
+    ]
+    return "\n".join(lines)
+
+
+MARKERS = ("<!-- results:start -->", "<!-- results:end -->")
+"""Where the README's generated summary goes."""
+
+
+def fill_markers(text: str, summary: str) -> str:
+    """``text`` with what lies between :data:`MARKERS` replaced by ``summary``."""
+    start, end = text.index(MARKERS[0]) + len(MARKERS[0]), text.index(MARKERS[1])
+    return text[:start] + "\n" + summary + "\n" + text[end:]
+
+
+def render(out: Path, markdown: Path, readme: Path | None = None) -> Path:
     paths = sorted(out.glob("x*.json"))
     if not paths:
         raise SystemExit(f"no tables (x*.json) in {out}: run without --render-only first")
@@ -364,6 +419,11 @@ def render(out: Path, markdown: Path) -> Path:
     except ValueError:
         where = f"`{out}`"
     markdown.write_text(render_markdown(documents, where))
+    text = readme.read_text() if readme is not None and readme.is_file() else ""
+    if all(marker in text for marker in MARKERS):
+        page = markdown.resolve().relative_to(readme.resolve().parent).as_posix()
+        readme.write_text(fill_markers(text, render_summary(documents, page)))
+        print(f"wrote the summary into {readme}", file=sys.stderr)
     return markdown
 
 
@@ -402,7 +462,8 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         for path in run_all(args, argv):
             print(f"wrote {path}", file=sys.stderr)
-    print(f"wrote {render(args.out, args.markdown)}", file=sys.stderr)
+    readme = README if args.markdown.resolve() == MARKDOWN else None  # the project's own page
+    print(f"wrote {render(args.out, args.markdown, readme)}", file=sys.stderr)
     return 0
 
 
