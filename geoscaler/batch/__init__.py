@@ -89,44 +89,21 @@ def command(args: Any, settings: dict[str, Any]) -> int:
     """``geoscaler batch``: run every asset, write the summary; returns the number of assets
     that failed (at most 125, an exit status). ``settings``: ``geoscaler.cli.job_settings``."""
     in_dir, out_dir = Path(args.in_dir), Path(args.output)
-    if not in_dir.is_dir():
-        raise GeoscalerError(f"{in_dir}: no such folder; give the folder that holds the assets")
-    if out_dir.resolve() == in_dir.resolve():
-        raise GeoscalerError(f"-o {out_dir}: is IN_DIR; give the outputs a folder of their own")
-    if args.jobs < 1 or args.cpus_per_task <= 0 or args.gpus_per_task <= 0:
-        raise GeoscalerError("--jobs, --cpus-per-task and --gpus-per-task: give numbers > 0")
+    _check_arguments(args, in_dir, out_dir)
     if args.engine == "ray":
         import_ray()
     key = resume_key(settings, args.format)
     prepare_folder(out_dir, "-o")
     with locked(out_dir):
         summaries = [out_dir / name for name in SUMMARY_FILES]
-        if not (args.resume or args.force) and any(p.exists() for p in summaries):
-            raise GeoscalerError(
-                f"-o {out_dir}: a batch ran into this folder before (it holds summary.json); "
-                "pass --resume to go on with it (finished assets are skipped) or --force to "
-                "redo every asset"
-            )
+        _check_no_earlier_batch(args, out_dir, summaries)
         check_outputs(summaries, force=True)
-        assets = plan_assets(in_dir, out_dir, args.format)
-        if not assets:
-            raise GeoscalerError(
-                f"{in_dir}: no assets found (.glb, .gltf or .obj files, or folders whose "
-                'meta.json names one as "entry")'
-            )
+        assets = _plan(in_dir, out_dir, args.format)
         _sweep_stale(out_dir)
-        results: dict[str, AssetResult] = {}
-        for asset in assets if args.resume else []:
-            document = completed(asset, key)
-            if document is not None:
-                results[asset.name] = AssetResult(asset.name, SKIPPED, document)
+        results = _finished_before(assets, key) if args.resume else {}
         todo = [a for a in assets if a.name not in results]
         created = _make_folders(todo, out_dir)
-        if args.engine == "ray":
-            workers = f"{args.cpus_per_task:g} CPU per task"
-        else:
-            threads = max(1, available_cores() // args.jobs)
-            workers = f"{args.jobs} job{'s' * (args.jobs > 1)} x {threads} torch thread(s)"
+        workers = _workers(args)
         print(
             f"batch: {len(assets)} assets in {in_dir}: {len(todo)} to run, {len(results)} "
             f"finished before (skipped); engine {args.engine}, {workers}"
@@ -136,32 +113,99 @@ def command(args: Any, settings: dict[str, Any]) -> int:
             stopped = _run(todo, settings, key, args, results)
         finally:
             wall = WALL_CLOCK.now() - start
-            for asset in assets:
-                results.setdefault(asset.name, AssetResult(asset.name, NOT_RUN))
-            rows = [summary_row(a, results[a.name], out_dir) for a in assets]
-            ran = sum(results[a.name].status == DONE for a in todo)
-            document = {
-                "in_dir": str(in_dir),
-                "out_dir": str(out_dir),
-                "run": {
-                    "engine": args.engine,
-                    "workers": workers,
-                    "settings": key,
-                    "wall_seconds": round(wall, 3),
-                    "assets_per_hour": round(3600 * ran / wall, 2) if wall > 0 else 0.0,
-                },
-                "assets": rows,
-                "total": total_row(rows),
-            }
-            written = write_summary(out_dir, document)
-            for folder in created:
-                with contextlib.suppress(OSError):
-                    folder.rmdir()  # only if empty: no asset was written there
-    failed = sum(row["status"] == FAILED for row in rows)
+            run = {"engine": args.engine, "workers": workers, "settings": key}
+            document, written = _summarise(in_dir, out_dir, assets, todo, results, run, wall)
+            _remove_empty(created)
+    failed = sum(row["status"] == FAILED for row in document["assets"])
     print(f"total: {document['total']['status']}; wrote {', '.join(map(str, written))}")
     if stopped:
         raise KeyboardInterrupt
     return min(failed, 125)
+
+
+def _check_arguments(args: Any, in_dir: Path, out_dir: Path) -> None:
+    """IN_DIR is a folder, OUT_DIR another; the counts of jobs, CPUs and GPUs are > 0."""
+    if not in_dir.is_dir():
+        raise GeoscalerError(f"{in_dir}: no such folder; give the folder that holds the assets")
+    if out_dir.resolve() == in_dir.resolve():
+        raise GeoscalerError(f"-o {out_dir}: is IN_DIR; give the outputs a folder of their own")
+    if args.jobs < 1 or args.cpus_per_task <= 0 or args.gpus_per_task <= 0:
+        raise GeoscalerError("--jobs, --cpus-per-task and --gpus-per-task: give numbers > 0")
+
+
+def _check_no_earlier_batch(args: Any, out_dir: Path, summaries: list[Path]) -> None:
+    """Refuse an OUT_DIR that holds an earlier batch's summary, unless --resume or --force."""
+    if not (args.resume or args.force) and any(p.exists() for p in summaries):
+        raise GeoscalerError(
+            f"-o {out_dir}: a batch ran into this folder before (it holds summary.json); "
+            "pass --resume to go on with it (finished assets are skipped) or --force to "
+            "redo every asset"
+        )
+
+
+def _plan(in_dir: Path, out_dir: Path, fmt: str | None) -> list[Asset]:
+    """The assets under ``in_dir`` (:func:`plan_assets`); refuses a folder without any."""
+    assets = plan_assets(in_dir, out_dir, fmt)
+    if not assets:
+        raise GeoscalerError(
+            f"{in_dir}: no assets found (.glb, .gltf or .obj files, or folders whose "
+            'meta.json names one as "entry")'
+        )
+    return assets
+
+
+def _finished_before(assets: Sequence[Asset], key: dict[str, Any]) -> dict[str, AssetResult]:
+    """SKIPPED results of the assets an earlier batch completed with the same settings."""
+    results: dict[str, AssetResult] = {}
+    for asset in assets:
+        document = completed(asset, key)
+        if document is not None:
+            results[asset.name] = AssetResult(asset.name, SKIPPED, document)
+    return results
+
+
+def _workers(args: Any) -> str:
+    """The engine's workers in words, e.g. ``2 jobs x 4 torch thread(s)``."""
+    if args.engine == "ray":
+        return f"{args.cpus_per_task:g} CPU per task"
+    threads = max(1, available_cores() // args.jobs)
+    return f"{args.jobs} job{'s' * (args.jobs > 1)} x {threads} torch thread(s)"
+
+
+def _summarise(
+    in_dir: Path,
+    out_dir: Path,
+    assets: Sequence[Asset],
+    todo: Sequence[Asset],
+    results: dict[str, AssetResult],
+    run: dict[str, Any],
+    wall: float,
+) -> tuple[dict[str, Any], list[Path]]:
+    """Write the summary files (assets without a result: NOT_RUN); returns the document and
+    the files written. ``run``: the engine, workers and settings."""
+    for asset in assets:
+        results.setdefault(asset.name, AssetResult(asset.name, NOT_RUN))
+    rows = [summary_row(a, results[a.name], out_dir) for a in assets]
+    ran = sum(results[a.name].status == DONE for a in todo)
+    document = {
+        "in_dir": str(in_dir),
+        "out_dir": str(out_dir),
+        "run": {
+            **run,
+            "wall_seconds": round(wall, 3),
+            "assets_per_hour": round(3600 * ran / wall, 2) if wall > 0 else 0.0,
+        },
+        "assets": rows,
+        "total": total_row(rows),
+    }
+    return document, write_summary(out_dir, document)
+
+
+def _remove_empty(created: Sequence[Path]) -> None:
+    """Remove the output folders this batch created and wrote nothing into (deepest first)."""
+    for folder in created:
+        with contextlib.suppress(OSError):
+            folder.rmdir()  # only if empty: no asset was written there
 
 
 def _run(

@@ -169,41 +169,69 @@ def run_ray(
 
         ray.init(address=address, logging_level=logging.WARNING, log_to_driver=False)
     try:
-        resources = ray.cluster_resources()
-        device = tasks[0].settings["options"].device if tasks else "cpu"
-        use_gpus = device == "cuda" or (device == "auto" and resources.get("GPU", 0) > 0)
-        if device == "cuda" and resources.get("GPU", 0) < gpus:
-            raise GeoscalerError("--device cuda: the Ray cluster has no GPU; use --device auto")
-        limits = [resources.get("CPU", 1) / cpus] + ([resources["GPU"] / gpus] if use_gpus else [])
-        capacity = max(1, int(min(limits)))
+        use_gpus, capacity = _ray_slots(ray.cluster_resources(), tasks, cpus, gpus)
         remote = ray.remote(run_asset).options(
             num_cpus=cpus, num_gpus=gpus if use_gpus else 0, max_retries=1
         )
         queue = [AssetTask(**{**vars(t), "threads": max(1, round(cpus))}) for t in tasks]
-        running: dict[Any, AssetTask] = {}
-        try:
-            while running or (queue and not interrupts.stopping):
-                while queue and not interrupts.stopping and len(running) < capacity:
-                    task = queue.pop(0)
-                    running[remote.remote(task)] = task
-                ready, _ = ray.wait(list(running), num_returns=1, timeout=1.0)
-                for ref in ready:
-                    task = running.pop(ref)
-                    try:
-                        done(ray.get(ref))
-                    except ray.exceptions.RayError as error:  # its worker died, its node was lost
-                        sweep(task.asset)
-                        text = str(error).strip().splitlines()
-                        why = one_line(f"Ray: {type(error).__name__}: {text[0]}", task.asset.path)
-                        done(AssetResult(task.asset.name, FAILED, error=why))
-        except BaseException:
-            for ref in running:
-                ray.cancel(ref, force=True)
-            with contextlib.suppress(Exception):
-                ray.wait(list(running), num_returns=len(running), timeout=30)
-            for task in running.values():
-                sweep(task.asset)
-            raise
+        _run_queue(ray, remote, queue, capacity, done, interrupts)
     finally:
         if started:
             ray.shutdown()
+
+
+def _ray_slots(
+    resources: dict[str, float], tasks: Sequence[AssetTask], cpus: float, gpus: float
+) -> tuple[bool, int]:
+    """Whether the tasks ask for GPUs, and how many of them the cluster runs at once."""
+    device = tasks[0].settings["options"].device if tasks else "cpu"
+    use_gpus = device == "cuda" or (device == "auto" and resources.get("GPU", 0) > 0)
+    if device == "cuda" and resources.get("GPU", 0) < gpus:
+        raise GeoscalerError("--device cuda: the Ray cluster has no GPU; use --device auto")
+    limits = [resources.get("CPU", 1) / cpus] + ([resources["GPU"] / gpus] if use_gpus else [])
+    return use_gpus, max(1, int(min(limits)))
+
+
+def _run_queue(
+    ray: Any,
+    remote: Any,
+    queue: list[AssetTask],
+    capacity: int,
+    done: Callable[[AssetResult], None],
+    interrupts: Interrupts,
+) -> None:
+    """Keep up to ``capacity`` tasks running until the queue is done or a Ctrl-C stops it;
+    on an error or a second Ctrl-C, cancel the running ones."""
+    running: dict[Any, AssetTask] = {}
+    try:
+        while running or (queue and not interrupts.stopping):
+            while queue and not interrupts.stopping and len(running) < capacity:
+                task = queue.pop(0)
+                running[remote.remote(task)] = task
+            ready, _ = ray.wait(list(running), num_returns=1, timeout=1.0)
+            for ref in ready:
+                _ray_result(ray, ref, running.pop(ref), done)
+    except BaseException:
+        _cancel_ray(ray, running)
+        raise
+
+
+def _ray_result(ray: Any, ref: Any, task: AssetTask, done: Callable[[AssetResult], None]) -> None:
+    """Pass on the result of a finished Ray task; a task Ray lost (its worker or node) FAILED."""
+    try:
+        done(ray.get(ref))
+    except ray.exceptions.RayError as error:  # its worker died, its node was lost
+        sweep(task.asset)
+        text = str(error).strip().splitlines()
+        why = one_line(f"Ray: {type(error).__name__}: {text[0]}", task.asset.path)
+        done(AssetResult(task.asset.name, FAILED, error=why))
+
+
+def _cancel_ray(ray: Any, running: dict[Any, AssetTask]) -> None:
+    """Cancel the running Ray tasks, wait for them (30 s at most), remove what they left."""
+    for ref in running:
+        ray.cancel(ref, force=True)
+    with contextlib.suppress(Exception):
+        ray.wait(list(running), num_returns=len(running), timeout=30)
+    for task in running.values():
+        sweep(task.asset)
