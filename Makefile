@@ -66,8 +66,8 @@ bench-app: setup system-packages
 	$(XVFB) $(PY) benchmarks/bench_app.py
 
 # Re-make docs/results/*.json and docs/results.md: bicubic, Lanczos, direct and direct --uv auto on
-# every development mesh at 4x and 8x, 60 s a learned job, scored on Q, near and far (about an
-# hour on 2 cores). Run it on an idle machine and say so: make results RESULTS_FLAGS=--alone;
+# every development mesh at 4x and 8x, 60 s a learned job, scored on Q, near and far (1.5 to 2
+# hours on 2 cores). Run it on an idle machine and say so: make results RESULTS_FLAGS=--alone;
 # RESULTS_FLAGS=--render-only re-renders the page from the JSON files alone.
 .PHONY: results
 results: setup
