@@ -275,6 +275,7 @@ class Training:
         return float(scores["ssim_fg"].mean())
 
     def _on_event(self, event: ProgressEvent) -> None:
+        """Take one progress event of the job into the state the UI draws."""
         if event.phase == "caching":
             self._set(caching=(event.done, event.total))
             return
@@ -282,42 +283,56 @@ class Training:
             self._set(bicubic_psnr=event.baselines[GAIN_REFERENCE]["Q"])
             return
         with self.lock:
-            state = self.state
-            state.step, state.total_steps = event.step, event.total_steps
-            if math.isfinite(event.best_psnr):
-                state.best_psnr = event.best_psnr
-            if event.phase == "step":
-                if not self.controller.paused:
-                    state.phase = "optimising"
-                state.steps.append(event.step)
-                state.times.append(event.elapsed)
-                state.losses.append(event.loss)
-            elif event.phase == "validation" and event.validation_psnr is not None:
-                state.validation_steps.append(event.step)
-                state.validation_times.append(event.elapsed)
-                state.validation_psnr.append(event.validation_psnr)
-            elif event.phase == "done":
-                state.phase = "scoring on the validation views"
+            self._record(event)
         now = WALL_CLOCK.now()
         if event.phase == "step":
             time.sleep(self.hold_back(now))
         live = now - self._last_snapshot > SNAPSHOT_INTERVAL
         if event.candidate is None or not (live or event.phase == "validation"):
             return
+        self._take_candidate(event, now, live)
+
+    def _record(self, event: ProgressEvent) -> None:
+        """The event's step, best PSNR, phase and curve points into the state (lock held)."""
+        state = self.state
+        state.step, state.total_steps = event.step, event.total_steps
+        if math.isfinite(event.best_psnr):
+            state.best_psnr = event.best_psnr
+        if event.phase == "step":
+            if not self.controller.paused:
+                state.phase = "optimising"
+            state.steps.append(event.step)
+            state.times.append(event.elapsed)
+            state.losses.append(event.loss)
+        elif event.phase == "validation" and event.validation_psnr is not None:
+            state.validation_steps.append(event.step)
+            state.validation_times.append(event.elapsed)
+            state.validation_psnr.append(event.validation_psnr)
+        elif event.phase == "done":
+            state.phase = "scoring on the validation views"
+
+    def _take_candidate(self, event: ProgressEvent, now: float, live: bool) -> None:
+        """Score the event's candidate (SSIM, at a validation) and show it when ``live``."""
         linear, uvs = event.candidate()
         if event.phase == "validation":
             ssim = self._ssim(linear, uvs)
             with self.lock:
                 self.state.validation_ssim.append(ssim)
         if live:
-            self._last_snapshot = now
-            textures = [None if t is None else linear_to_texture(t) for t in linear]
-            chains = [None if t is None else srgb_mip_chain(t) for t in textures]
-            moved = None if uvs is None else uvs.cpu().numpy().astype(np.float32)
-            with self.lock:
-                self.state.textures, self.state.chains = textures, chains
-                self.state.uvs = moved
-                self.state.texture_version += 1
+            self._snapshot(linear, uvs, now)
+
+    def _snapshot(
+        self, linear: list[torch.Tensor | None], uvs: torch.Tensor | None, now: float
+    ) -> None:
+        """Make the candidate's textures and UVs the ones the views draw (a new snapshot)."""
+        self._last_snapshot = now
+        textures = [None if t is None else linear_to_texture(t) for t in linear]
+        chains = [None if t is None else srgb_mip_chain(t) for t in textures]
+        moved = None if uvs is None else uvs.cpu().numpy().astype(np.float32)
+        with self.lock:
+            self.state.textures, self.state.chains = textures, chains
+            self.state.uvs = moved
+            self.state.texture_version += 1
 
 
 class _Observer(JobObserver):
