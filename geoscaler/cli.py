@@ -416,18 +416,34 @@ def _add_device_argument(parser: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line: ``--version`` and one sub-command per ``_add_*_command``."""
     parser = argparse.ArgumentParser(
         prog="geoscaler",
         description="Downsample the textures of 3D meshes for the views people will see.",
     )
     parser.add_argument("--version", action="version", version=f"geoscaler {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_info_command(commands)
+    _add_render_command(commands)
+    _add_downsample_command(commands)
+    _add_demo_command(commands)
+    _add_view_command(commands)
+    _add_compare_command(commands)
+    _add_bench_command(commands)
+    _add_batch_command(commands)
+    return parser
 
+
+def _add_info_command(commands: argparse._SubParsersAction) -> None:
+    """``geoscaler info MESH``: sizes, textures and UV charts of a mesh."""
     info = commands.add_parser("info", help="describe a mesh: sizes, textures, UV charts")
     info.add_argument("mesh", help="OBJ, glTF or GLB file")
     info.add_argument("--json", action="store_true", help="print JSON instead of text")
     info.set_defaults(run=cmd_info)
 
+
+def _add_render_command(commands: argparse._SubParsersAction) -> None:
+    """``geoscaler render MESH -o PNG``: one protocol view of a mesh."""
     render = commands.add_parser("render", help="render one protocol view of a mesh to PNG")
     render.add_argument("mesh", help="OBJ, glTF or GLB file")
     render.add_argument("--view", type=int, default=0, help="validation view index 0-59")
@@ -437,6 +453,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_device_argument(render)
     render.set_defaults(run=cmd_render)
 
+
+def _add_downsample_command(commands: argparse._SubParsersAction) -> None:
+    """``geoscaler downsample MESH -o OUT``: the main job on one mesh."""
     downsample = commands.add_parser(
         "downsample",
         help="the main job: every texture smaller, the base colour rendering like the original",
@@ -454,6 +473,9 @@ def build_parser() -> argparse.ArgumentParser:
     downsample.add_argument("--report", help="also write the report as JSON to this file")
     downsample.set_defaults(run=cmd_downsample)
 
+
+def _add_demo_command(commands: argparse._SubParsersAction) -> None:
+    """``geoscaler demo``: the built-in demo asset, downsampled 4x."""
     demo = commands.add_parser(
         "demo",
         help="build the built-in demo asset and downsample it 4x (under 2 minutes on 2 cores)",
@@ -466,6 +488,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_device_argument(demo)
     demo.set_defaults(run=cmd_demo)
 
+
+def _add_view_command(commands: argparse._SubParsersAction) -> None:
+    """``geoscaler view [MESH]``: the desktop app."""
     view = commands.add_parser(
         "view",
         help="the desktop app: original and downsampled views side by side, live optimisation",
@@ -478,6 +503,9 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("--scale", type=_scale_factor, default=4, help="scale at start (default 4)")
     view.set_defaults(run=cmd_view)
 
+
+def _add_compare_command(commands: argparse._SubParsersAction) -> None:
+    """``geoscaler compare MESH``: the methods compared on one mesh."""
     compare = commands.add_parser(
         "compare", help="compare downsampling methods on one mesh (protocol metrics, pictures)"
     )
@@ -485,6 +513,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_method_arguments(compare, scales=[4])
     compare.set_defaults(run=cmd_compare)
 
+
+def _add_bench_command(commands: argparse._SubParsersAction) -> None:
+    """``geoscaler bench PATH...``: the methods compared over many meshes."""
     bench = commands.add_parser(
         "bench", help="compare methods over many meshes: tables, CSV/JSON/Markdown, plot"
     )
@@ -492,6 +523,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_method_arguments(bench, scales=[4, 8])
     bench.set_defaults(run=cmd_bench)
 
+
+def _add_batch_command(commands: argparse._SubParsersAction) -> None:
+    """``geoscaler batch IN_DIR -o OUT_DIR``: the main job over a library."""
     batch = commands.add_parser(
         "batch",
         help="the main job over a library: every asset under IN_DIR, written under OUT_DIR",
@@ -552,7 +586,6 @@ def build_parser() -> argparse.ArgumentParser:
         "share a GPU)",
     )
     batch.set_defaults(run=cmd_batch)
-    return parser
 
 
 def printable(text: str) -> str:
