@@ -12,7 +12,7 @@ from geoscaler.clock import Budget
 from geoscaler.color import linear_to_texture
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext, output_sizes_for
-from geoscaler.optim.loop import Model, OptimizeConfig, optimize
+from geoscaler.optim.loop import ALONE, Model, OptimizeConfig, Phase, optimize
 from geoscaler.optim.losses import PerceptualTerm
 from geoscaler.optim.validation import Scores, Validation, validation_view_sets
 from geoscaler.render.renderer import Renderer
@@ -48,6 +48,7 @@ def fit(
     details: Mapping[str, Any] | None = None,
     pool: ViewCache | None = None,
     start_scores: Scores | None = None,
+    phase: Phase = ALONE,
 ) -> MethodResult:
     """Optimise ``model`` and return its best validated candidate as 8-bit textures (and UVs).
 
@@ -63,6 +64,7 @@ def fit(
         details: the method's own facts for the report, listed before the loop's.
         pool, start_scores: an earlier loop's training pool and the scores of the model's
             start, validated by it (:func:`geoscaler.optim.loop.optimize`).
+        phase: where the loop stands in a run of several (the layout race).
     """
     validation = context.validation
     if validation is None:
@@ -80,6 +82,7 @@ def fit(
         budget=Budget(context.clock, started, config.time_budget, context.reserve),
         pool=pool,
         start_scores=start_scores,
+        phase=phase,
     )
     textures = [None if t is None else linear_to_texture(t) for t in result.textures]
     uvs = None if result.uvs is None else result.uvs.detach().cpu().numpy().astype("float32")

@@ -27,8 +27,7 @@ from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods.learned import fit, loop_config
 from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext, output_sizes_for
-from geoscaler.optim.events import ProgressEvent
-from geoscaler.optim.loop import FINISH_MARGIN, OptimizeConfig
+from geoscaler.optim.loop import FINISH_MARGIN, OptimizeConfig, Phase
 from geoscaler.optim.validation import MIN_FROZEN, Validation, sets_below, validation_view_sets
 from geoscaler.render.cameras import Camera, sample_training_cameras
 from geoscaler.render.renderer import Renderer
@@ -478,14 +477,16 @@ def _stopped(context: RunContext) -> bool:
 
 @dataclass
 class _Phase:
-    """One phase of :func:`raced`: a loop whose steps and events continue the race's.
+    """One phase of :func:`raced`: a loop whose steps and events continue the race's
+    (:class:`~geoscaler.optim.loop.Phase`).
 
     Attributes:
         config, context, started: the method's loop settings, context and start.
         steps_before: steps the race made before this phase.
         first: the first phase counts its budget from the method's start (its views are cached
-            in the whole run's caching window); later ones from their own start.
-        last: the phase that ends the race (its ``"done"`` event is passed on).
+            in the whole run's caching window) and reports the caching; later ones count from
+            their own start.
+        last: the phase that ends the race (it reports the end).
     """
 
     config: OptimizeConfig
@@ -508,8 +509,8 @@ class _Phase:
         **handover: Any,
     ) -> MethodResult:
         """:meth:`Layout.fit` for at most ``steps`` steps, its loop ending by ``loop_end``
-        (an instant on the context's clock; None: no budget) with ``reserve`` seconds after it; its
-        ``best_step`` counted on from the race's steps, as its events are (0: its start)."""
+        (an instant on the context's clock; None: no budget) with ``reserve`` seconds after it;
+        its events and ``best_step`` counted on from the race's steps (0: its start)."""
         now = self.context.clock.now()
         start = self.started if self.first else now
         config = replace(self.config, steps=steps)
@@ -518,33 +519,10 @@ class _Phase:
                 reserve = self.started + self.config.time_budget - loop_end
             else:
                 config = replace(config, time_budget=loop_end + reserve - now)
-        on_event = self._events(start - self.started)
-        context = replace(self.context, reserve=reserve, on_event=on_event)
-        result = layout.fit(mesh, rule, model, config, context, start, facts or {}, **handover)
-        if result.details["best_step"]:
-            result.details["best_step"] += self.steps_before
-        return result
-
-    def _events(self, seconds_before: float) -> Any:
-        """The context's ``on_event`` seeing the race's steps and seconds: this phase's counted
-        on from what came before, its caching reported in the first phase only and its end in
-        the last only."""
-        on_event = self.context.on_event
-        if on_event is None:
-            return None
-        total = self.config.steps
-
-        def forward(event: ProgressEvent) -> None:
-            if (event.phase == "caching" and not self.first) or (
-                event.phase == "done" and not self.last
-            ):
-                return
-            step = event.step + self.steps_before
-            on_event(
-                replace(event, step=step, total_steps=total, elapsed=event.elapsed + seconds_before)
-            )
-
-        return forward
+        context = replace(self.context, reserve=reserve)
+        phase = Phase(self.steps_before, self.config.steps, self.started, self.first, self.last)
+        return layout.fit(mesh, rule, model, config, context, start, facts or {}, phase=phase,
+                          **handover)  # fmt: skip
 
 
 def _with_layout_uvs(on_event: Any, uvs: torch.Tensor) -> Any:

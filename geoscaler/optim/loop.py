@@ -290,8 +290,9 @@ class _Caching:
         validation: Validation,
         config: OptimizeConfig,
         budget: Budget,
-        emit: Callable[[ProgressEvent], None],
+        emit: Callable[..., None],
     ):
+        """``emit(kind, **fields)`` reports a progress event of the loop."""
         self.train, self.validation, self.config = train, validation, config
         self.budget, self.emit = budget, emit
         self.view_cost = ViewCost()
@@ -327,12 +328,7 @@ class _Caching:
                 return False
             if not self._cache_pool_view():
                 break
-            elapsed = self.budget.elapsed()
-            self.emit(
-                ProgressEvent(
-                    "caching", 0, self.config.steps, elapsed, done=len(self.pool), total=needed
-                )
-            )
+            self.emit("caching", done=len(self.pool), total=needed)
         return True
 
     def after_step(self) -> None:
@@ -360,6 +356,32 @@ class _Caching:
         """``(cached, planned)`` views, training and validation together."""
         cached = len(self.pool) + self.validation.num_views
         return cached, len(self.pool.cameras) + self.validation.planned
+
+
+@dataclass(frozen=True)
+class Phase:
+    """Where a loop stands in a run of several loops (the layout race's trials and its
+    continuation): its progress events count steps and seconds as the run does.
+
+    Attributes:
+        steps_before: steps the run made before this loop; events and ``best_step`` count on
+            from them.
+        total_steps: the run's step limit, reported in events (None: this loop's).
+        run_start: the instant (on the budget's clock) events count seconds from (None: the
+            loop's budget's start).
+        reports_caching: this loop reports its caching before the first step (the run's first).
+        reports_done: this loop reports the run's end (the run's last).
+    """
+
+    steps_before: int = 0
+    total_steps: int | None = None
+    run_start: float | None = None
+    reports_caching: bool = True
+    reports_done: bool = True
+
+
+ALONE = Phase()
+"""A loop that is a run of its own."""
 
 
 @dataclass
@@ -414,8 +436,10 @@ class TrainingLoop:
         perceptual: PerceptualTerm | None = None,
         pool: ViewCache | None = None,
         start_scores: Scores | None = None,
+        phase: Phase = ALONE,
     ):
         self.renderer, self.model, self.config = renderer, model, config
+        self.phase = phase
         self.validation, self.budget = validation, budget
         self.emit = on_event or (lambda event: None)
         self.controller = controller or Controller()
@@ -438,7 +462,7 @@ class TrainingLoop:
     def run(self) -> OptimizeResult:
         """Train, validate and return the best validated candidate."""
         self.renderer.reference_textures()  # made once, before views are timed: not a view's cost
-        self.caching = _Caching(self.train, self.validation, self.config, self.budget, self.emit)
+        self.caching = _Caching(self.train, self.validation, self.config, self.budget, self._report)
         trainable = self.caching.until_trainable(self.fits)
         self.start_state = _detached(self.model)
         if not trainable:  # not even the first step's views could be cached in time
@@ -479,6 +503,19 @@ class TrainingLoop:
                 self._reachable = [None if m is None else m.to(self.renderer.device) for m in masks]
         return self._reachable
 
+    def _report(self, kind: str, **fields: object) -> None:
+        """Report a progress event of ``kind`` at the current step, counted as the run counts
+        (:class:`Phase`); a phase's caching and end are reported where it says so."""
+        phase = self.phase
+        if (kind == "caching" and not phase.reports_caching) or (
+            kind == "done" and not phase.reports_done
+        ):
+            return
+        start = self.budget.start if phase.run_start is None else phase.run_start
+        step = phase.steps_before + self.state.step
+        total = phase.total_steps or self.config.steps
+        self.emit(ProgressEvent(kind, step, total, self.budget.now() - start, **fields))
+
     # ------------------------------------------------------------------------------ a step
 
     def _may_step(self) -> bool:
@@ -511,9 +548,8 @@ class TrainingLoop:
             state.first_step_seconds = elapsed
             self.reachable()  # now, before the budget's next look at the clock
         done, total = self.caching.views_done
-        self.emit(ProgressEvent("step", state.step, config.steps, elapsed, state.loss,
-                                best_psnr=self.best.psnr, done=done, total=total,
-                                candidate=self._candidate))  # fmt: skip
+        self._report("step", loss=state.loss, best_psnr=self.best.psnr, done=done, total=total,
+                     candidate=self._candidate)  # fmt: skip
         state.history.append({"step": state.step, "loss": state.loss, "elapsed": elapsed})
 
     def _lr_factor(self, step: int, scale: float) -> float:
@@ -564,15 +600,13 @@ class TrainingLoop:
     def _offer(self, scores: dict[str, float], finished: Candidate) -> bool:
         state = self.state
         improved = self.best.offer(scores, finished, state.step)
-        self.emit(ProgressEvent("validation", state.step, self.config.steps,
-                                self.budget.elapsed(), state.loss, scores["Q"], self.best.psnr,
-                                scores=scores, candidate=self._candidate))  # fmt: skip
+        self._report("validation", loss=state.loss, validation_psnr=scores["Q"],
+                     best_psnr=self.best.psnr, scores=scores,
+                     candidate=self._candidate)  # fmt: skip
         return improved
 
     def _validate_start(self) -> None:
-        self.emit(ProgressEvent("baselines", self.state.step, self.config.steps,
-                                self.budget.elapsed(),
-                                baselines=self.validation.baseline_scores()))  # fmt: skip
+        self._report("baselines", baselines=self.validation.baseline_scores())
         textures, uvs = self.start_state
         start_candidate = finish(textures, self.reachable()), uvs
         scores = self.start_scores
@@ -591,14 +625,13 @@ class TrainingLoop:
             finished = finished_candidate(self.model, self.reachable())
             self._offer(validate(self.validation, finished), finished)
         seconds = self.budget.elapsed()
-        self.emit(ProgressEvent("done", state.step, self.config.steps, seconds, state.loss,
-                                None, self.best.psnr))  # fmt: skip
+        self._report("done", loss=state.loss, best_psnr=self.best.psnr)
         best = self.best
         return OptimizeResult(
             textures=best.textures,
             uvs=best.uvs,
             steps=state.step,
-            best_step=best.step,
+            best_step=best.step + self.phase.steps_before if best.step else 0,  # 0: its start
             scores=best.scores,
             clears_floor=best.clears,
             shortfall=best.rank[0],
@@ -626,6 +659,7 @@ def optimize(
     budget: Budget | None = None,
     pool: ViewCache | None = None,
     start_scores: Scores | None = None,
+    phase: Phase = ALONE,
 ) -> OptimizeResult:
     """Optimise ``model`` so that renders of its candidate match renders of the original.
 
@@ -651,6 +685,8 @@ def optimize(
             ``training_cameras``): an earlier loop's keeps its cached views and taps.
         start_scores: the validation scores of the model's start, when an earlier loop on the
             same validation validated it (it is not validated again).
+        phase: where the loop stands in a run of several (its events' and ``best_step``'s
+            count).
 
     Returns:
         The best validated candidate (detached) by :meth:`Validation.rank`: the best on Q of
@@ -665,5 +701,5 @@ def optimize(
         soft = config.soft if config.training_renderer == "soft" else None
         pool = training_views(renderer, cameras, validation.sizes, keeps_uvs, soft)
     loop = TrainingLoop(renderer, model, config, validation, budget, on_event, controller,
-                        keeps_uvs, perceptual, pool, start_scores)  # fmt: skip
+                        keeps_uvs, perceptual, pool, start_scores, phase)  # fmt: skip
     return loop.run()
