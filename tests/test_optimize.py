@@ -2,14 +2,13 @@
 
 import math
 import threading
-import time
 
 import numpy as np
 import pytest
 import torch
 from mesh_support import three_material_demo
 
-from geoscaler.clock import Budget, ManualClock
+from geoscaler.clock import WALL_CLOCK, Budget, Clock, ManualClock
 from geoscaler.color import linear_to_srgb, linear_to_texture, texture_to_linear
 from geoscaler.methods import MethodOptions, RunContext, run_method
 from geoscaler.methods.direct import TexelModel
@@ -381,8 +380,8 @@ def test_without_a_candidate_that_clears_the_one_that_falls_least_below_is_kept(
 class _Costing(Validation):
     """A validation whose remaining work (validations owed, scorings after) takes ``seconds``."""
 
-    def __init__(self, views, sizes, seconds: float):
-        super().__init__(views, sizes)
+    def __init__(self, views, sizes, seconds: float, clock: Clock = WALL_CLOCK):
+        super().__init__(views, sizes, clock=clock)
         self.seconds = seconds
 
     def seconds_needed(self, validations, caching, view_seconds=0.0):
@@ -399,28 +398,37 @@ def test_the_loop_stops_when_what_must_follow_it_would_overrun_the_budget(scene)
 class _CostingViews(Validation):
     """A validation whose remaining work is ``count`` views at the price it is given."""
 
-    def __init__(self, views, sizes, count: int):
-        super().__init__(views, sizes)
+    def __init__(self, views, sizes, count: int, clock: Clock = WALL_CLOCK):
+        super().__init__(views, sizes, clock=clock)
         self.count = count
 
     def seconds_needed(self, validations, caching, view_seconds=0.0):
         return self.count * view_seconds
 
 
-def slow_caching(scene, monkeypatch, seconds: float | list[float]) -> Renderer:
-    """The scene's renderer, caching each view ``seconds`` late (or the n-th view
-    ``seconds[n]`` late)."""
+def slow_caching(
+    scene, monkeypatch, seconds: float | list[float], clock: ManualClock
+) -> Renderer:
+    """The scene's renderer, on whose ``clock`` caching each view takes ``seconds`` (or the
+    n-th view ``seconds[n]``); nothing else takes any time on it."""
     mesh, renderer, _ = scene
     slow = Renderer(mesh, "cpu", renderer.evaluation)
     cached_view = slow.cached_view
     delays = iter(seconds) if isinstance(seconds, list) else None
 
     def slow_view(camera):
-        time.sleep(seconds if delays is None else next(delays, 0.0))
+        clock.advance(seconds if delays is None else next(delays, 0.0))
         return cached_view(camera)
 
     monkeypatch.setattr(slow, "cached_view", slow_view)
     return slow
+
+
+def run_on(clock: ManualClock, renderer, validation, time_budget: float):
+    """The loop of the scene's Lanczos start under ``time_budget`` seconds of ``clock``."""
+    model, config = lanczos_model(renderer.mesh), small_config(time_budget=time_budget)
+    budget = Budget(clock, clock.now(), time_budget)
+    return optimize(renderer, model, config, validation, budget=budget)
 
 
 def test_the_loop_keeps_a_margin_on_what_must_follow_it(scene):
@@ -436,20 +444,22 @@ def test_a_first_step_that_cannot_fit_in_the_budget_is_not_started(scene, monkey
     # caching a view takes 0.25 s: once the first is cached, the 3 left (0.75 s) do not fit
     # in the 0.55 s left of a 0.8 s budget
     mesh, _, views = scene
-    slow = slow_caching(scene, monkeypatch, 0.25)
-    validation = _Costing(views, output_sizes(mesh, SCALE), seconds=0.0)  # nothing after
-    result = optimize(slow, lanczos_model(mesh), small_config(time_budget=0.8), validation)
+    clock = ManualClock()
+    slow = slow_caching(scene, monkeypatch, 0.25, clock)
+    validation = _Costing(views, output_sizes(mesh, SCALE), seconds=0.0, clock=clock)  # none
+    result = run_on(clock, slow, validation, time_budget=0.8)
     assert result.training_views == 1
     assert result.steps == 0 and result.stopped_by == "time budget" and result.best_step == 0
 
 
 def test_a_first_step_whose_views_fit_is_taken_though_caching_them_took_longer(scene, monkeypatch):
-    # the 4 views take 4 s of a 6 s budget (with 0.5 s a view to spare for a busy machine);
+    # the 4 views take 4 s of a 6 s budget;
     # a step from cached views takes far less than caching them (4 s more would not fit)
     mesh, _, views = scene
-    slow = slow_caching(scene, monkeypatch, 1.0)
-    validation = _Costing(views, output_sizes(mesh, SCALE), seconds=0.0)
-    result = optimize(slow, lanczos_model(mesh), small_config(time_budget=6.0), validation)
+    clock = ManualClock()
+    slow = slow_caching(scene, monkeypatch, 1.0, clock)
+    validation = _Costing(views, output_sizes(mesh, SCALE), seconds=0.0, clock=clock)
+    result = run_on(clock, slow, validation, time_budget=6.0)
     assert result.training_views == 4 and result.steps >= 1
 
 
@@ -458,9 +468,10 @@ def test_one_slow_view_does_not_price_every_view_still_to_cache(scene, monkeypat
     # costliest (7 * 0.6 * FINISH_MARGIN = 6.3 s) they would overrun a 4 s budget and stop the
     # job before its first step; at the mean (0.19 s a view: 2 s) they fit.
     mesh, _, views = scene
-    slow = slow_caching(scene, monkeypatch, [0.05, 0.05, 0.05, 0.6])
-    validation = _CostingViews(views, output_sizes(mesh, SCALE), count=7)
-    result = optimize(slow, lanczos_model(mesh), small_config(time_budget=4.0), validation)
+    clock = ManualClock()
+    slow = slow_caching(scene, monkeypatch, [0.05, 0.05, 0.05, 0.6], clock)
+    validation = _CostingViews(views, output_sizes(mesh, SCALE), count=7, clock=clock)
+    result = run_on(clock, slow, validation, time_budget=4.0)
     assert result.training_views >= 4 and result.steps >= 1
 
 
