@@ -10,11 +10,16 @@ from geoscaler.color import texture_to_linear
 from geoscaler.optim.validation import (
     FLOOR_CONFIDENCE,
     GUARD_VIEWS,
+    Floor,
+    QMetricsMemo,
     Scores,
+    UnitCosts,
     Validation,
+    ValidationViews,
     ViewCost,
     floor_margin,
     guard_cameras,
+    mean_gap,
     paired_gap,
     sets_below,
     validation_view_sets,
@@ -24,6 +29,7 @@ from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, Evaluation
 from geoscaler.render.cameras import fibonacci_directions, spread_order
 from geoscaler.render.metrics import mean_metrics
 from geoscaler.render.renderer import Renderer
+from geoscaler.render.views import ViewCache
 from geoscaler.resize.filters import bicubic, lanczos, output_sizes, reference_textures
 
 
@@ -160,7 +166,18 @@ def test_a_candidate_clears_a_set_by_its_per_view_gains_less_their_margin():
     assert math.isnan(
         paired_gap(Scores({"far": math.nan}, {"far": np.full(4, math.nan)}), floor, "far")
     )
-    assert paired_gap({"far": 59.0}, floor, "far") == -1.0  # means alone: their difference
+    assert mean_gap({"far": 59.0}, floor, "far") == -1.0  # means alone: their difference
+
+
+def test_a_paired_gap_without_per_view_values_or_of_different_views_says_so():
+    floor = Scores({"far": 60.0}, {"far": np.array([60.0, 61.0, 59.0, 60.0])})
+    with pytest.raises(ValueError, match="candidate has no per-view values of set 'far'"):
+        paired_gap({"far": 59.0}, floor, "far")
+    with pytest.raises(ValueError, match="floor has no per-view values of set 'far'"):
+        paired_gap(floor, Scores({"far": 60.0}), "far")
+    three = Scores({"far": 60.0}, {"far": np.array([60.0, 61.0, 59.0])})
+    with pytest.raises(ValueError, match="3 per-view values in the candidate and 4"):
+        paired_gap(three, floor, "far")
 
 
 def test_a_candidate_is_below_another_on_the_sets_where_that_one_clears_it():
@@ -248,3 +265,55 @@ def test_each_validation_measures_the_unit_costs_again(small):
     validation.psnr([texture_to_linear(lanczos(t, 4)) for t in reference_textures(mesh)], None)
     # a clock that ticks once a call: every render and every Q metric took one "second"
     assert (validation._render_seconds, validation._metric_seconds) == (1.0, 1.0)
+
+
+def _per_view_scores(**sets: list[float]) -> Scores:
+    """Scores whose means are those of the hand-made per-view values (dB)."""
+    per_view = {name: np.array(values) for name, values in sets.items()}
+    return Scores({name: float(np.nanmean(v)) for name, v in per_view.items()}, per_view)
+
+
+def test_the_floor_is_taken_and_ranked_on_alone_from_hand_made_scores():
+    bicubic = _per_view_scores(Q=[29.0, 30.0, 28.0], far=[50.0, 51.0, math.nan])
+    lanczos = _per_view_scores(Q=[30.0, 31.0, 29.0], far=[49.0, 50.0, math.nan])
+    floor = Floor({"bicubic": bicubic, "lanczos": lanczos}, ["Q", "far"])
+    assert floor.best == {"Q": lanczos, "far": bicubic}
+    assert floor.rank(lanczos) == (pytest.approx(-1.0), 30.0)  # 1 dB below bicubic far, steadily
+    sharper = _per_view_scores(Q=[32.0, 33.0, 31.0], far=[50.0, 51.0, math.nan])
+    assert floor.rank(sharper) == (0.0, 32.0) and floor.rank(sharper) > floor.rank(lanczos)
+    assert floor.gap({"Q": 29.0, "far": 50.0}, "Q") == -1.0  # means alone: mean_gap, by name
+    assert Floor({}, ["Q", "far"]).best == {} and Floor({}, ["Q"]).shortfall(sharper) == 0.0
+
+
+def test_the_seconds_needed_follow_from_given_unit_costs():
+    costs = UnitCosts()
+    costs.render_seconds, costs.metric_seconds = 0.5, 2.0
+    # 7 views: 3 validations render in each; Q's 3 views get the metrics of 3 + 1 scorings.
+    assert costs.seconds_needed(7, 3, 3, scorings_after=1) == 7 * 3 * 0.5 + 3 * 4 * 2.0
+    assert costs.seconds_needed(7, 3, 3, to_cache=2, view_seconds=4.0) == 10.5 + 18 + 2 * 4.0
+    costs.view_cost.add(1.5)  # a view timed: its mean replaces the caller's guess
+    assert costs.seconds_needed(7, 3, 3, to_cache=2, view_seconds=4.0) == 10.5 + 18 + 2 * 1.5
+
+
+def test_views_are_frozen_on_their_own_and_say_what_freezing_still_caches(small):
+    mesh, renderer = small
+    sizes = output_sizes(mesh, 4)
+    sets = {
+        name: ViewCache(view_set, sizes, with_taps=True)
+        for name, view_set in validation_view_sets(renderer, 2).items()
+    }
+    views = ValidationViews(sets)
+    assert views.next_set() == "Q" and views.to_cache() == 3 + 2 + 2
+    views.cache_view("Q")
+    assert views.next_set() == "near" and views.to_cache({"Q": 3}) == 2
+    views.freeze({"Q": 2})
+    assert views.counts == {"Q": 2, "near": 0, "far": 0} and views.next_set() is None
+
+
+def test_the_q_metrics_memo_knows_a_candidate_by_its_bytes():
+    memo = QMetricsMemo()
+    codes = [np.full((2, 2, 3), 7, np.uint8), None]
+    memo.keep(codes, None, {"psnr_fg": 30.0})
+    assert memo.get([c.copy() if c is not None else None for c in codes], None) == {"psnr_fg": 30.0}
+    assert memo.get(codes, np.zeros((3, 2), np.float32)) is None  # other UVs: another candidate
+    assert memo.get([np.full((2, 2, 3), 8, np.uint8), None], None) is None
