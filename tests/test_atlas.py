@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
+from clocks import TickingClock
 from mesh_support import ribbon_mesh
 from PIL import Image
 
@@ -256,17 +257,6 @@ def test_densities_above_the_bisections_answer_are_tried(monkeypatch):
     monkeypatch.setattr(packing, "_place", place)
     packed = pack(charts, np.ones(1), 32, 1, rotate=False)
     assert 0.55 * every_texel <= packed.texels_per_unit < 0.6 * every_texel
-
-
-class TickingClock:
-    """A clock that moves one second at every look, from 1."""
-
-    def __init__(self) -> None:
-        self.instant = 0.0
-
-    def now(self) -> float:
-        self.instant += 1.0
-        return self.instant
 
 
 def test_the_packing_search_stops_at_its_deadline(monkeypatch):

@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 import pytest
+from clocks import TickingClock
 
 from geoscaler.color import texture_to_linear
 from geoscaler.optim.validation import (
@@ -244,17 +245,6 @@ def test_a_validated_candidates_q_row_reuses_its_renders_and_equals_a_fresh_scor
     other = [bicubic(t, 4) for t in reference_textures(mesh)]  # never validated: rendered
     with pytest.raises(AssertionError, match="rendered again"):
         validation.score(other, None, ["Q"])
-
-
-class TickingClock:
-    """A clock that moves one second at every look."""
-
-    def __init__(self) -> None:
-        self.instant = 0.0
-
-    def now(self) -> float:
-        self.instant += 1.0
-        return self.instant
 
 
 def test_each_validation_measures_the_unit_costs_again(small):
