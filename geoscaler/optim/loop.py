@@ -430,11 +430,11 @@ class TrainingLoop:
         config: OptimizeConfig,
         validation: Validation,
         budget: Budget,
+        pool: ViewCache,
         on_event: Callable[[ProgressEvent], None] | None = None,
         controller: Controller | None = None,
         keeps_uvs: bool = True,
         perceptual: PerceptualTerm | None = None,
-        pool: ViewCache | None = None,
         start_scores: Scores | None = None,
         phase: Phase = ALONE,
     ):
@@ -458,11 +458,12 @@ class TrainingLoop:
         self.majorizes = (
             isinstance(model, Sloped) and keeps_uvs and pool.with_taps and plain_l2
         )
+        self.caching = _Caching(pool, validation, config, budget, self._report)
+        self.start_state: Candidate | None = None
 
     def run(self) -> OptimizeResult:
         """Train, validate and return the best validated candidate."""
         self.renderer.reference_textures()  # made once, before views are timed: not a view's cost
-        self.caching = _Caching(self.train, self.validation, self.config, self.budget, self._report)
         trainable = self.caching.until_trainable(self.fits)
         self.start_state = _detached(self.model)
         if not trainable:  # not even the first step's views could be cached in time
@@ -700,6 +701,6 @@ def optimize(
         )
         soft = config.soft if config.training_renderer == "soft" else None
         pool = training_views(renderer, cameras, validation.sizes, keeps_uvs, soft)
-    loop = TrainingLoop(renderer, model, config, validation, budget, on_event, controller,
-                        keeps_uvs, perceptual, pool, start_scores, phase)  # fmt: skip
+    loop = TrainingLoop(renderer, model, config, validation, budget, pool, on_event,
+                        controller, keeps_uvs, perceptual, start_scores, phase)  # fmt: skip
     return loop.run()
