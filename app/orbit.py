@@ -1,8 +1,7 @@
 """The app's interactive camera: orbit, zoom and pan around the protocol's scene.
 
 It is a thin state over :class:`geoscaler.render.cameras.Camera` (one camera convention for the
-whole
-project): yaw and pitch give the view direction, ``distance`` the eye distance, and ``pan`` an
+whole project): yaw and pitch give the view direction, ``distance`` the eye distance, and ``pan`` an
 image shift in normalised device units applied after the protocol projection.
 
 The app's views need not be square: :func:`view_scale` keeps the protocol's field of view across

@@ -3,10 +3,9 @@
 The worker runs :func:`geoscaler.pipeline.job.downsample` -- the CLI's job -- with a
 :class:`~geoscaler.optim.loop.Controller` for pause/resume/stop and a
 :class:`~geoscaler.pipeline.job.JobObserver` that records the caching, bicubic's score on Q (the
-gain's
-zero, scored once the validation views are in), the loss and validation PSNR and, a few times a
-second, pulls the current texture (and UVs) with ``ProgressEvent.candidate``. The UI thread
-only reads :class:`TrainingState` under its lock.
+gain's zero, scored once the validation views are in), the loss and validation PSNR and, a few times
+a second, pulls the current texture (and UVs) with ``ProgressEvent.candidate``. The UI thread only
+reads :class:`TrainingState` under its lock.
 
 On 2 cores the worker runs torch on one thread (``torch.set_num_threads(1)``, process-wide), so
 the UI thread and the GL driver keep the other core. While the user drags the camera the worker

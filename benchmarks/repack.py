@@ -2,10 +2,9 @@
 the new layout, and repack + `direct`, per development mesh and scale, protocol 1.
 
 Every method runs through the job's own comparison (`geoscaler.pipeline.job.compare_mesh`), as
-`geoscaler
-bench` runs it: the same cached views, validation and scoring, references always the original
-maps on the original UVs, every learned method under the same time budget. The bake alone is
-registered here as a filter (it is what repack + `direct` starts from, not validated); the
+`geoscaler bench` runs it: the same cached views, validation and scoring, references always the
+original maps on the original UVs, every learned method under the same time budget. The bake alone
+is registered here as a filter (it is what repack + `direct` starts from, not validated); the
 repacked layout is planned on training views only.
 
 Usage:

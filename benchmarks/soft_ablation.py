@@ -8,8 +8,7 @@ as its last step left it (``<method> (last)``, gutters filled as the loop fills 
 paper keeps the last state, and only that one says what training through the soft renderer
 alone does. The ``shipped`` column says what the job would ship
 (:func:`geoscaler.pipeline.job.no_worse_than_filters`). Bicubic and Lanczos are scored beside them;
-the
-gain is PSNR-fg over bicubic's on the same mesh, scale and set.
+the gain is PSNR-fg over bicubic's on the same mesh, scale and set.
 
 Usage:
     python benchmarks/soft_ablation.py [PATH ...] [--scale 4 8] [--methods direct,geoscaler-full]

@@ -108,9 +108,8 @@ def cmd_render(args: argparse.Namespace) -> None:
 
 
 def job_settings(args: argparse.Namespace) -> dict[str, Any]:
-    """The checked settings of a downsampling job from :func:`add_job_arguments`' options:
-    the keyword arguments of :func:`geoscaler.pipeline.downsampling.prepare` but the mesh and
-    output."""
+    """The checked settings of a downsampling job from :func:`add_job_arguments`' options: the
+    keyword arguments of :func:`geoscaler.pipeline.downsampling.prepare` but the mesh and output."""
     from geoscaler.pipeline.arguments import (
         DEFAULT_TIME_BUDGET,
         check_image_format,

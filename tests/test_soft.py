@@ -1,6 +1,5 @@
 """The paper's soft rasteriser (geoscaler.render.soft): SoftRas / PyTorch3D semantics on small
-analytic
-scenes, its gradients, its bounded-memory machinery against an untiled reference, and the
+analytic scenes, its gradients, its bounded-memory machinery against an untiled reference, and the
 training loop's soft option."""
 
 import math

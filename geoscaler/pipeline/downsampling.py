@@ -183,9 +183,9 @@ def export(
     force: bool = False,
     image_format: str | None = None,
 ) -> tuple[list[Path], list[ShippedMap]]:
-    """Write the asset as it ships (:func:`geoscaler.pipeline.shipping.ship_asset`: the result's
-    base
-    colours and UVs, every other map at its class's size) in the format ``output`` names.
+    """Write the asset as it ships (:func:`geoscaler.pipeline.shipping.ship_asset`: the
+    result's base colours and UVs, every other map at its class's size) in the format
+    ``output`` names.
 
     Returns the files written, the main file last, and every texture before and after, with
     the bytes of its image as written.

@@ -2,11 +2,9 @@
 
 The job's method makes the base colours (optimised through the renderer, or a filter); every
 other map is resized here by what it holds (:func:`geoscaler.resize.maps.resize_map`: colour in
-linear
-light, normals as vectors, data channel by channel) at the size its class's rule gives
+linear light, normals as vectors, data channel by channel) at the size its class's rule gives
 (:class:`geoscaler.resize.sizes.SizePlan`), from the full-resolution original. A texture that
-several
-slots or materials show is resized once and stays shared (sharing is by array identity, as
+several slots or materials show is resized once and stays shared (sharing is by array identity, as
 the loader gives it); one the rule does not shrink ships as it came, bytes and all.
 """
 

@@ -37,8 +37,7 @@ class EncodedMipTexture(MipTexture):
     :class:`MipTexture`'s memory: level 0 stays the texture's 8-bit codes, decoded tap by tap
     through a table per channel, and only the coarser levels are float32, made from level 0 a
     band of rows at a time (:func:`~geoscaler.render.texture.next_mip_level`). Every lookup gives
-    the
-    same bits as the :class:`MipTexture` of the decoded texture (by default
+    the same bits as the :class:`MipTexture` of the decoded texture (by default
     ``texture_to_linear(texture)``); no gradient flows (the original's chain, which views are
     rendered from).
 

@@ -4,9 +4,8 @@ A :class:`ViewSet` rasterises its cameras once and renders the reference images 
 candidate texture (and, for methods that move them, UVs) is then rendered from the same
 G-buffers. A :class:`ViewCache` adds the tap renderer: with the mesh's own UVs a pixel is a
 fixed weighted sum of texels, so each view's texture taps are found once and a render is one
-gather per material (what training steps, validation and the report's scores use). Candidates
-are scored as they would ship: 8-bit textures, compared with
-:func:`geoscaler.render.metrics.evaluate`.
+gather per material (what training steps, validation and the report's scores use). Candidates are
+scored as they would ship: 8-bit textures, compared with :func:`geoscaler.render.metrics.evaluate`.
 
 A view set may also be rendered by the paper's soft rasteriser (:class:`geoscaler.render.soft.
 SoftRenderer`, which mirrors the renderer's methods): :func:`training_views` makes a training
@@ -157,8 +156,7 @@ class ViewCache:
         with_taps: cache the taps (valid only while the UVs stay the mesh's own).
         renderer: renders candidates (default: the view set's); a renderer of the same mesh
             in another UV layout (:meth:`~geoscaler.render.renderer.Renderer.relaid`) renders them
-            in
-            that layout on the same G-buffers and references.
+            in that layout on the same G-buffers and references.
     """
 
     def __init__(
@@ -356,8 +354,7 @@ def training_views(
 
     Without ``soft``: views of ``renderer`` (with the taps of ``sizes`` when ``with_taps``).
     With ``soft``: views of a :class:`~geoscaler.render.soft.SoftRenderer` of the same mesh, device
-    and
-    evaluation, whose references are soft renders of ``renderer``'s reference maps, so that
+    and evaluation, whose references are soft renders of ``renderer``'s reference maps, so that
     candidate and original are rendered the same way, as the paper trains (with taps too:
     :meth:`~geoscaler.render.soft.SoftRenderer.pixel_taps`).
     """

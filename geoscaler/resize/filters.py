@@ -52,9 +52,8 @@ __all__ = [
 def target_size(height: int, width: int, scale: int) -> tuple[int, int]:
     """Size of a texture downsampled by ``scale``: each side divided, rounded to whole texels.
 
-    ``h = round(height / scale)``, ``w = round(width / scale)``, halves rounded up
-    (1000 x 750 at 8 -> 125 x 94): :meth:`geoscaler.resize.sizes.SizeRule.size` with the scale
-    alone.
+    ``h = round(height / scale)``, ``w = round(width / scale)``, halves rounded up (1000 x 750 at 8
+    -> 125 x 94): :meth:`geoscaler.resize.sizes.SizeRule.size` with the scale alone.
 
     Raises:
         GeoscalerError: ``scale`` is not a whole number >= 2 (bools and floats such as 4.0

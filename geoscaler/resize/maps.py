@@ -263,8 +263,8 @@ def _separable(
 
 def _pillow_plane(plane: np.ndarray, size: tuple[int, int], resample: Image.Resampling):
     """``(H, W)`` float32 -> ``size`` float32 through
-    :func:`geoscaler.resize.filters.resize_channels`
-    (a Pillow 'F' image; a side left unchanged is not filtered)."""
+    :func:`geoscaler.resize.filters.resize_channels` (a Pillow 'F' image; a side left unchanged is
+    not filtered)."""
     return resize_channels(plane[..., None], size, resample)[..., 0]
 
 

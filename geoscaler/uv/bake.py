@@ -91,8 +91,7 @@ def bake(
     ``size``: colour with Pillow's Lanczos on its stored sRGB values, as the ``lanczos``
     baseline but in float (rounded to 8 bits once), other classes by
     :func:`geoscaler.resize.maps.resize_map`: the protocol scores sRGB images, and filtering in
-    linear
-    light softens edges (``benchmarks/far_views.py``; see docs/decisions/bake-filtering.md).
+    linear light softens edges (``benchmarks/far_views.py``; see docs/decisions/bake-filtering.md).
 
     Args:
         pixels: ``(H, W, C)`` uint8 map in the old layout (repeat addressing).
