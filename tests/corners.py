@@ -44,10 +44,10 @@ def world_corners(path: Path) -> Corners:
     return _obj_corners(path) if path.suffix.lower() == ".obj" else _gltf_corners(path)
 
 
-def matched_faces(a: Corners, b: Corners) -> tuple[np.ndarray, np.ndarray]:
-    """Pair the faces of ``a`` and ``b`` by where their corners stand (position and UV,
-    corners in any order, faces in any order); faces standing on the same corners (a file
-    may hold a face twice) pair by their normals too.
+def matched_faces(a: Corners, b: Corners, by_uv: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Pair the faces of ``a`` and ``b`` by where their corners stand (position and, with
+    ``by_uv``, UV; corners in any order, faces in any order); faces standing on the same
+    corners (a file may hold a face twice) pair by their normals too.
 
     Returns ``(order_a, corner_b)``: face ``order_a[i]`` of ``a`` is face ``i`` of ``b``, and
     ``corner_b[i, j]`` is the corner of that face of ``a`` that stands at corner ``j`` of ``b``.
@@ -55,8 +55,8 @@ def matched_faces(a: Corners, b: Corners) -> tuple[np.ndarray, np.ndarray]:
     """
     assert len(a.positions) == len(b.positions), "the face counts differ"
     scale = float(np.abs(a.positions).max()) or 1.0
-    key_a, rank_a = _face_keys(a, scale)
-    key_b, rank_b = _face_keys(b, scale)
+    key_a, rank_a = _face_keys(a, scale, by_uv)
+    key_b, rank_b = _face_keys(b, scale, by_uv)
     near = min(8, len(key_a))
     distance, candidates = cKDTree(key_a).query(key_b, k=near)
     distance, candidates = distance.reshape(len(key_b), near), candidates.reshape(len(key_b), near)
@@ -73,11 +73,11 @@ def matched_faces(a: Corners, b: Corners) -> tuple[np.ndarray, np.ndarray]:
     return order_a, corner_b
 
 
-def _face_keys(corners: Corners, scale: float) -> tuple[np.ndarray, np.ndarray]:
+def _face_keys(corners: Corners, scale: float, by_uv: bool) -> tuple[np.ndarray, np.ndarray]:
     """Each face's corners sorted by (position, UV), flattened with their normals weighted
-    1e-6 (to tell apart faces on the same corners): ``(F, 15 or 24)``; and the sort
-    ``(F, 3)``, corner ranks in the face."""
-    columns = [corners.positions / scale, corners.uvs]
+    1e-6 (to tell apart faces on the same corners): ``(F, 15 or 24)``, or without the UVs;
+    and the sort ``(F, 3)``, corner ranks in the face."""
+    columns = [corners.positions / scale, corners.uvs if by_uv else 0 * corners.uvs]
     if corners.normals is not None:
         columns.append(corners.normals * 1e-6)
     rows = np.concatenate(columns, axis=2)

@@ -13,14 +13,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from conftest import mesh_params
 from corners import Corners, matched_faces, world_corners
 from io_assets import FLOAT, UNSIGNED_SHORT, _Blob, encode, smooth
 
 import geoscaler.cli
-from geoscaler.io import save_mesh
+from geoscaler.io import load_mesh, save_mesh
+from geoscaler.methods import MethodResult
+from geoscaler.pipeline.downsampling import export
 from geoscaler.procedural import scan_mesh
 from geoscaler.protocol import Evaluation
+from geoscaler.resize.sizes import size_plan
+from geoscaler.uv.atlas import repack
 
 ONE_VIEW = Evaluation.quick((0,))
 # One cached training view and one step: the geometry written does not depend on how long the
@@ -239,3 +244,30 @@ def test_every_development_mesh_keeps_every_corner(tmp_path, mesh, method):
     out = downsample(mesh, tmp_path / f"out{mesh.suffix if mesh.suffix != '.gltf' else '.glb'}",
                      method)  # fmt: skip
     assert_corners_kept(world_corners(mesh), out)
+
+
+def test_a_repacked_layout_keeps_every_corner_but_its_uvs(tmp_path):
+    """A new layout written as the job writes it (the export of a result carrying the atlas):
+    new UVs, every other corner attribute as it was; the boxes' normal map keeps their charts
+    from turning, so the tangents stay valid and are kept."""
+    source = write_hard_boxes(tmp_path / "in", EVERY)
+    mesh = load_mesh(source)
+    every_face = [torch.arange(len(mesh.faces)).repeat_interleave(20)]
+    atlas = repack(mesh, [(16, 16)], every_face, 256)
+    assert atlas.moved
+    texture = np.zeros((16, 16, 3), np.uint8)
+    out = tmp_path / "out.glb"
+    export(mesh, MethodResult([texture], atlas.uvs, layout=atlas), out, size_plan({"all": 4}, {}),
+           "direct")  # fmt: skip
+    before, after = world_corners(source), world_corners(out)
+    order, corner = matched_faces(before, after, by_uv=False)
+
+    def kept(values: np.ndarray) -> np.ndarray:
+        return np.take_along_axis(values[order], corner[:, :, None], axis=1)
+
+    np.testing.assert_allclose(kept(before.positions), after.positions, atol=1e-5)
+    for name in ("normals", "tangents"):
+        np.testing.assert_allclose(kept(getattr(before, name)), getattr(after, name), atol=1e-6)
+    for name, values in before.attributes.items():
+        np.testing.assert_allclose(kept(values), after.attributes[name], atol=1e-6)
+    assert np.abs(kept(before.uvs) - after.uvs).max() > 0.1  # the new layout is written
