@@ -272,7 +272,7 @@ class App:
             overwrite,
             report,
         )
-        shipped = done.result.details.get("shipped", settings.method)
+        shipped = done.result.shipped(settings.method)
         written, done.maps = export(session.mesh, done.result, output, plan, shipped, overwrite)
         document = report_document(job, done, training.seconds, written)
         text = _json(document)

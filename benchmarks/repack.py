@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from geoscaler.io import load_mesh
-from geoscaler.methods import MethodOptions, MethodResult, RunContext
+from geoscaler.methods import LayoutFacts, MethodOptions, MethodResult, RunContext
 from geoscaler.methods.direct import DEFAULT_CONFIG
 from geoscaler.methods.learned import loop_config
 from geoscaler.methods.registry import get_method, output_sizes_for, register
@@ -40,6 +40,7 @@ from geoscaler.pipeline.job import compare_mesh
 from geoscaler.protocol import PROTOCOL_EVALUATION
 from geoscaler.render.renderer import Renderer
 from geoscaler.report.bench import find_meshes
+from geoscaler.report.documents import method_details
 from geoscaler.resize.sizes import SizeRule
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -58,7 +59,8 @@ def bake_alone(mesh, rule, options: MethodOptions, context: RunContext) -> Metho
     textures = baked_maps(mesh, atlas, renderer.reference_maps(), sizes)
     kept = get_method("lanczos").run(mesh, rule, options, context).textures
     textures = [t if t is not None else k for t, k in zip(textures, kept, strict=True)]
-    return MethodResult(textures, atlas.uvs, details={"layout": atlas.facts}, layout=atlas)
+    facts = LayoutFacts(uv="repack", used="repack", planned=atlas.facts)
+    return MethodResult(textures, atlas.uvs, layout=atlas, layout_facts=facts)
 
 
 def register_methods() -> None:
@@ -83,7 +85,8 @@ def mesh_rows(
     rows = []
     for scale in scales:
         outputs = {m: comparison.outputs[m, scale] for m in methods if m in LEARNED + ["bake"]}
-        layouts = [o.details["layout"] for o in outputs.values() if "layout" in o.details]
+        facts = [o.layout_facts for o in outputs.values() if o.layout_facts is not None]
+        layouts = [f.planned for f in facts if f.planned is not None]
         layout = layouts[0] if layouts else {}
         relaid = [o.uvs for o in outputs.values() if o.uvs is not None]
         for distance in distances:
@@ -108,8 +111,8 @@ def mesh_rows(
                 "vertex_change": len(mesh.with_uvs(relaid[0]).uvs) - len(mesh.uvs) if relaid else 0,
             }
             if "auto" in outputs:
-                row["auto_layout"] = outputs["auto"].details.get("layout_used", "keep")
-                row["auto_race"] = outputs["auto"].details.get("race")
+                row["auto_layout"] = method_details(outputs["auto"]).get("layout_used", "keep")
+                row["auto_race"] = method_details(outputs["auto"]).get("race")
             rows.append(row)
     print(f"# {entry.name}: {time.perf_counter() - started:.0f} s", file=sys.stderr)
     return rows
@@ -194,7 +197,7 @@ def layout_figure(entry, scale: int, out: Path, device: str) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"repack_{entry.name}_x{scale}.png"
     figure.save(path)
-    print(f"{path}: k {result.details.get('layout', {}).get('k')}", file=sys.stderr)
+    print(f"{path}: k {method_details(result).get('layout', {}).get('k')}", file=sys.stderr)
     return path
 
 

@@ -33,11 +33,12 @@ import json
 import statistics
 import time
 from collections import defaultdict
+from dataclasses import replace
 from pathlib import Path
 
 from geoscaler.color import linear_to_texture, texture_to_linear
 from geoscaler.io import load_mesh
-from geoscaler.methods import MethodOptions, MethodResult, RunContext, run_method
+from geoscaler.methods import MethodOptions, MethodResult, RunContext, Shipping, run_method
 from geoscaler.methods.direct import TexelModel
 from geoscaler.optim.adamw import AdamW
 from geoscaler.optim.loop import TRAINING_RANGES, OptimizeConfig, finish, train_step
@@ -56,6 +57,7 @@ from geoscaler.render.renderer import Renderer, resolve_device
 from geoscaler.render.soft import SoftSettings
 from geoscaler.render.views import ViewCache, ViewSet, training_views
 from geoscaler.report.bench import MeshEntry, find_meshes
+from geoscaler.report.documents import method_details
 from geoscaler.resize.filters import lanczos, output_sizes, reference_textures
 from geoscaler.uv.uvmaps import reachable_masks
 
@@ -118,8 +120,8 @@ def mesh_rows(entry: MeshEntry, args) -> list[dict]:
             for (name, renderer_name), result in results.items():
                 row = protocol_row(result, name, scale, distance, cache)
                 row.update(mesh=entry.name, renderer=renderer_name)
-                row["steps"] = result.details.get("steps")
-                row["best_step"] = result.details.get("best_step")
+                row["steps"] = method_details(result).get("steps")
+                row["best_step"] = method_details(result).get("best_step")
                 bicubic = row["psnr_fg"] if name == "bicubic" else bicubic
                 rows.append(row)
             for row in rows[-len(results) :]:
@@ -134,8 +136,7 @@ def last_state(candidate, reachable, result: MethodResult) -> MethodResult:
         textures = finish(textures, reachable)
     textures = [None if t is None else linear_to_texture(t) for t in textures]
     uvs = None if uvs is None else uvs.cpu().numpy().astype("float32")
-    details = {"steps": result.details.get("steps"), "shipped": "-"}
-    return MethodResult(textures, uvs, result.seconds, details)
+    return replace(result, textures=textures, uvs=uvs, shipping=Shipping("-"))
 
 
 def table(rows: list[dict]) -> str:

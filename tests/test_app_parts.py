@@ -167,7 +167,7 @@ def test_training_runs_off_thread_and_reports(small_demo):
 def test_the_app_trains_through_the_soft_renderer_when_chosen(small_demo):
     state = finished_run(small_demo, "direct", steps=2, validate_every=2, renderer="soft")
     assert state.phase == "done" and state.step == 2
-    assert state.result.details["training_renderer"] == "soft"
+    assert state.result.result.training_renderer == "soft"
 
 
 def test_training_pauses_resumes_and_stops(small_demo):
@@ -196,7 +196,7 @@ def test_training_pauses_resumes_and_stops(small_demo):
     assert run.wait(timeout=60)
     state = run.read()
     assert state.phase == "done" and state.step < 10_000
-    assert state.result.details["stopped_by"] == "stopped"
+    assert state.result.result.loop.stopped_by == "stopped"
 
 
 def test_the_worker_holds_back_after_each_step_while_the_user_moves_the_camera(small_demo):

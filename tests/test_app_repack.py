@@ -39,7 +39,7 @@ def test_the_app_repacks_and_shows_the_new_layout(tmp_path):
     mesh = cube_mesh(texture_size=256)
     state = repacked_run(mesh)
     result = state.result.result
-    assert result.layout is not None and state.result.details["layout_used"] == "repack"
+    assert result.layout is not None and state.result.result.layout_facts.used == "repack"
     assert state.uvs is not None  # the live candidate came with the new layout's UVs
     np.testing.assert_array_equal(state.uvs, result.uvs)
 

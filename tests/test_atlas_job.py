@@ -19,6 +19,7 @@ from geoscaler.methods import MethodOptions, run_method
 from geoscaler.methods.registry import RunContext, get_method, register, unregister
 from geoscaler.pipeline.job import compare_mesh
 from geoscaler.protocol import Evaluation
+from geoscaler.report.documents import method_details
 from geoscaler.uv.uvmaps import chart_labels
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -46,9 +47,9 @@ def test_repack_returns_new_uvs_of_every_face_corner_and_its_layout(cube):
     assert result.layout is not None and result.uvs.shape == (len(cube.faces), 3, 2)
     np.testing.assert_array_equal(result.uvs, result.layout.uvs)
     assert result.textures[0].shape == (64, 64, 3)
-    assert result.details["layout_used"] == "repack"
-    assert result.details["layout"]["k"] > 1.5
-    assert "race" not in result.details
+    assert method_details(result)["layout_used"] == "repack"
+    assert method_details(result)["layout"]["k"] > 1.5
+    assert "race" not in method_details(result)
 
 
 def raced(cube, steps: int, on_event=None):
@@ -61,31 +62,32 @@ def raced(cube, steps: int, on_event=None):
 
 def test_auto_tries_both_layouts_and_the_better_validated_goes_on(cube):
     result = raced(cube, steps=10)
-    race = result.details["race"]
+    race = method_details(result)["race"]
     assert [trial["steps"] for trial in race.values()] == [2, 2]  # 20% of the steps each
     ranks = {name: (t["shortfall_db"], t["validation_psnr_fg"]) for name, t in race.items()}
     winner = max(ranks, key=lambda name: (ranks[name], name == "keep"))
-    assert result.details["layout_used"] == winner
+    assert method_details(result)["layout_used"] == winner
     for trial in race.values():  # every set's mean, Q's the one ranked
         assert set(trial["validation_sets"]) == {"Q", "near", "far"}
         assert trial["validation_sets"]["Q"] == trial["validation_psnr_fg"]
     assert (result.uvs is not None) == (winner == "repack")
-    assert result.details["steps"] == 2 + 2 + 8  # the winner goes on with what it has left
+    assert method_details(result)["steps"] == 2 + 2 + 8  # the winner goes on with what it has left
     # the continuation starts from the winner's best and validates it: never below it
-    assert result.details["validation_psnr_fg"] >= race[winner]["validation_psnr_fg"]
+    assert method_details(result)["validation_psnr_fg"] >= race[winner]["validation_psnr_fg"]
 
 
 def test_a_new_layout_below_the_own_one_on_any_set_stays_out_of_the_race():
     from types import SimpleNamespace
 
-    from geoscaler.methods.registry import MethodResult
+    from geoscaler.methods.registry import LayoutFacts, LoopFacts, MethodResult
     from geoscaler.methods.repacked import _winner
     from geoscaler.optim.validation import Scores
 
     def trial(q: float, far: list[float]) -> MethodResult:
         per_view = {"Q": np.array([q, q + 1, q - 1]), "far": np.array(far)}
         scores = Scores({"Q": q, "far": float(np.mean(far))}, per_view)
-        return MethodResult([None], details={"steps": 5, "validation_scores": scores})
+        loop = LoopFacts(5, 0, scores, True, {}, "steps", 0.0, 0, {}, 0)
+        return MethodResult([None], loop=loop)
 
     ranked_by_q = SimpleNamespace(rank=lambda scores: (0.0, scores["Q"]))
     names = ("keep", "repack", "unaligned")
@@ -98,13 +100,13 @@ def test_a_new_layout_below_the_own_one_on_any_set_stays_out_of_the_race():
         "repack": trial(33.0, [49.5, 50.5, 48.5]),
         "unaligned": trial(31.0, [50.5, 50.5, 49.0]),
     }
-    facts: dict = {}
+    facts = LayoutFacts(uv="auto")
     assert _winner(trials, layouts, facts) == "unaligned"
-    below = {name: race["below_own_on"] for name, race in facts["race"].items()}
+    below = {name: trial.below_own_on for name, trial in facts.race.items()}
     assert below == {"keep": [], "repack": ["far"], "unaligned": []}
     # Below far, the only new layout: the own one goes on though it is 3 dB lower on Q.
     del trials["unaligned"]
-    assert _winner(trials, layouts, facts) == "keep" == facts["layout_used"]
+    assert _winner(trials, layouts, facts) == "keep" == facts.used
 
 
 def minifying(uv: str, steps: int):
@@ -119,33 +121,33 @@ def minifying(uv: str, steps: int):
 
 def test_where_charts_are_aligned_the_race_weighs_the_unaligned_layout_too():
     result = minifying("auto", steps=10)
-    race = result.details["race"]
+    race = method_details(result)["race"]
     assert list(race) == ["keep", "repack", "unaligned"]
     assert [trial["steps"] for trial in race.values()] == [2, 2, 2]
     ranks = {name: (t["shortfall_db"], t["validation_psnr_fg"]) for name, t in race.items()}
     winner = max(ranks, key=lambda name: (ranks[name], name == "keep"))
-    assert result.details["layout_used"] == winner
+    assert method_details(result)["layout_used"] == winner
     if winner != "keep":  # the report describes the layout that went on
-        assert result.details["layout"] == result.layout.facts
+        assert method_details(result)["layout"] == result.layout.facts
         assert result.layout.aligned == (winner == "repack")
 
 
 def test_repack_races_its_aligned_and_unaligned_layouts():
     result = minifying("repack", steps=10)
-    assert list(result.details["race"]) == ["repack", "unaligned"]
-    assert result.details["layout_used"] in ("repack", "unaligned")
+    assert list(method_details(result)["race"]) == ["repack", "unaligned"]
+    assert method_details(result)["layout_used"] in ("repack", "unaligned")
     assert result.uvs is not None and result.layout.aligned == (
-        result.details["layout_used"] == "repack"
+        method_details(result)["layout_used"] == "repack"
     )
-    assert result.details["layout"]["alignment_texels"] == (
-        16 if result.details["layout_used"] == "repack" else 1
+    assert method_details(result)["layout"]["alignment_texels"] == (
+        16 if method_details(result)["layout_used"] == "repack" else 1
     )
 
 
 def test_fewer_steps_than_layouts_run_the_first_layout_alone(cube):
     result = raced(cube, steps=1)
-    assert result.details["steps"] == 1 and "race" not in result.details
-    assert result.details["layout_used"] == "keep" and result.uvs is None
+    assert method_details(result)["steps"] == 1 and "race" not in method_details(result)
+    assert method_details(result)["layout_used"] == "keep" and result.uvs is None
 
 
 def test_the_race_reports_one_run_of_steps_and_one_end(cube):
@@ -154,9 +156,9 @@ def test_the_race_reports_one_run_of_steps_and_one_end(cube):
     steps = [event.step for event in events if event.phase == "step"]
     assert steps == list(range(1, 7))  # trials of 1 step each, then the winner's 4 left
     # The shipped candidate's step is the one its validation was reported at (0: a start).
-    best = result.details["validation_psnr_fg"]
+    best = method_details(result)["validation_psnr_fg"]
     found = [e.step for e in events if e.phase == "validation" and e.validation_psnr == best]
-    assert result.details["best_step"] == (found[0] if found else 0)
+    assert method_details(result)["best_step"] == (found[0] if found else 0)
     assert {event.total_steps for event in events} == {5}
     assert [event.phase for event in events].count("done") == 1
     assert events[-1].phase == "done"
@@ -192,11 +194,11 @@ def test_a_budget_without_time_to_plan_and_bake_keeps_the_own_layout(cube):
 
     context = RunContext(Renderer(cube, "cpu", QUICK), time_budget=0.05)
     result = run_method("direct", cube, 4, options("auto"), context)
-    assert result.details["layout_used"] == "keep" and result.uvs is None
-    assert result.details["layout_skipped"] == (
+    assert method_details(result)["layout_used"] == "keep" and result.uvs is None
+    assert method_details(result)["layout_skipped"] == (
         "the time budget left no time to plan and bake a new layout"
     )
-    assert "layout" not in result.details and "race" not in result.details
+    assert "layout" not in method_details(result) and "race" not in method_details(result)
 
 
 def test_the_bake_is_priced_at_a_validation_views_cost_per_sample():

@@ -300,7 +300,7 @@ def test_learned_methods_validate_on_the_views_compare_scores_on(monkeypatch):
         observer=Watch(),
     )
     assert [row["method"] for row in comparison.rows] == ["bicubic", "direct"]
-    assert comparison.outputs["direct", 4].details["steps"] == 1
+    assert comparison.outputs["direct", 4].loop.steps == 1
     ((distance, q),) = handed  # Q, once: validated on, then scored on
     assert distance == 2.4 and len(q) == len(q.cameras) == 1  # the renderer's one view
 

@@ -10,6 +10,7 @@ and the candidate is validated as it ships.
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -17,12 +18,13 @@ import pytest
 from geoscaler.cli import main
 from geoscaler.clock import WALL_CLOCK, ManualClock
 from geoscaler.io import save_mesh
-from geoscaler.methods import MethodOptions, MethodResult, get_method, registry
+from geoscaler.methods import LoopFacts, MethodOptions, MethodResult, get_method, registry
 from geoscaler.optim.validation import Validation
 from geoscaler.pipeline.job import JobBudget, compare_on_validation, no_worse_than_filters
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import Evaluation
 from geoscaler.render.renderer import Renderer
+from geoscaler.report.documents import method_details
 
 ONE_VIEW_POOL = {"pool_views": 1, "views_per_step": 1, "validate_every": 1}
 
@@ -40,7 +42,7 @@ def cut_short():
 
 
 def test_what_ships_is_what_was_validated(cut_short):
-    details = cut_short.outputs["direct", 4].details
+    details = method_details(cut_short.outputs["direct", 4])
     rows = {row["method"]: row for row in cut_short.rows}
     assert details["shipped"] == rows["direct"]["shipped"] == "direct"
     # the loop's score of its finished candidate is the job's score of the 8-bit file's texture
@@ -49,7 +51,7 @@ def test_what_ships_is_what_was_validated(cut_short):
 
 def test_a_pool_cut_short_never_ships_below_the_filters(cut_short):
     rows = {row["method"]: row for row in cut_short.rows}
-    details = cut_short.outputs["direct", 4].details
+    details = method_details(cut_short.outputs["direct", 4])
     assert details["validation_views"] == {"Q": 2, "near": 2, "far": 2}
     assert details["shortfall_db"] == 0.0  # no worse than the best filter on every set
     assert rows["direct"]["psnr_fg"] >= rows["lanczos"]["psnr_fg"]
@@ -76,7 +78,13 @@ FILTERS = {
 def _learned(q: float, near: float, far: float) -> MethodResult:
     scores = {"Q": q, "near": near, "far": far}
     texture = np.full((2, 2, 3), 7, np.uint8)
-    return MethodResult([texture], np.zeros((3, 2), np.float32), 1.0, {"validation_scores": scores})
+    return MethodResult([texture], np.zeros((3, 2), np.float32), 1.0, loop=loop_facts(scores))
+
+
+def loop_facts(scores: dict[str, float], views: dict[str, int] | None = None) -> LoopFacts:
+    """A loop's facts with these validation scores (the rest as a loop of no step leaves
+    them)."""
+    return LoopFacts(0, 0, scores, False, {}, "steps", math.nan, 0, views or {}, 0)
 
 
 def _filters() -> dict[str, MethodResult]:
@@ -86,13 +94,13 @@ def _filters() -> dict[str, MethodResult]:
 def test_a_learned_result_no_worse_than_every_filter_everywhere_ships_itself():
     result = _learned(31.0, 30.0, 33.0)
     shipped = no_worse_than_filters("direct", result, _Scored(FILTERS), _filters())
-    assert shipped is result and shipped.details["shipped"] == "direct"
+    assert shipped is result and shipped.shipping.shipped == "direct"
 
 
 def test_a_learned_result_sharper_near_but_worse_far_away_ships_the_filter():
     result = _learned(31.0, 30.0, 32.0)  # 1 dB below bicubic far away; Lanczos is 0.5 below
     shipped = no_worse_than_filters("direct", result, _Scored(FILTERS), _filters())
-    assert shipped.details["shipped"] == "lanczos"
+    assert shipped.shipping.shipped == "lanczos"
     assert shipped.textures[0][0, 0, 0] == 1 and shipped.uvs is None  # Lanczos's, its UVs
     assert shipped.seconds == 1.0
 
@@ -100,7 +108,7 @@ def test_a_learned_result_sharper_near_but_worse_far_away_ships_the_filter():
 def test_the_learned_result_ships_where_it_falls_less_below_the_floor_than_any_filter():
     result = _learned(31.0, 30.0, 32.8)  # 0.2 dB below bicubic far away, Lanczos 0.5 dB
     shipped = no_worse_than_filters("direct", result, _Scored(FILTERS), _filters())
-    assert shipped is result and shipped.details["shipped"] == "direct"  # 1 dB below on Q
+    assert shipped is result and shipped.shipping.shipped == "direct"  # 1 dB below on Q
 
 
 def test_without_filters_or_scores_the_learned_result_ships():
@@ -114,9 +122,9 @@ def test_the_report_says_what_shipped(tmp_path, capsys):
     def spoiler(mesh, scale, options, context):
         """A learned method whose result scores 5 dB on every validation set."""
         result = get_method("bicubic").run(mesh, scale, options, context)
-        result.details["validation_scores"] = {"Q": 5.0, "near": 5.0, "far": 5.0}
         context.validation.freeze()
-        result.details["validation_views"] = context.validation.counts
+        scores = {"Q": 5.0, "near": 5.0, "far": 5.0}
+        result.loop = loop_facts(scores, context.validation.counts)
         return result
 
     mesh_path, out, report = tmp_path / "mesh.glb", tmp_path / "out.glb", tmp_path / "r.json"
@@ -178,8 +186,8 @@ def test_a_learned_method_the_budget_cannot_hold_is_not_run_and_lanczos_ships(bu
     )  # fmt: skip
     assert budget_spy == []  # never called
     result, lanczos = done.outputs["budget-spy", 4], done.outputs["lanczos", 4]
-    assert result.details["shipped"] == "lanczos" and "steps" not in result.details
-    assert "cannot hold the validation budget-spy owes" in result.details["not_run"]
+    assert result.shipping.shipped == "lanczos" and result.loop is None
+    assert "cannot hold the validation budget-spy owes" in result.shipping.not_run
     assert np.array_equal(result.textures[0], lanczos.textures[0])
     rows = {row["method"]: row for row in done.rows}
     assert rows["budget-spy"]["psnr_fg"] == rows["lanczos"]["psnr_fg"]

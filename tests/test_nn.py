@@ -475,15 +475,15 @@ def test_the_method_returns_8bit_textures_and_valid_uvs(small_mesh, name):
     result = run_method(name, small_mesh, 4, options, small_context(small_mesh, views=2))
     (texture,) = result.textures
     assert texture.dtype == np.uint8 and texture.shape == (16, 16, 3)
-    assert result.details["variant"] == name.split("-")[1]
-    assert result.details["perceptual"] == "off in this preset"
+    assert result.network.variant == name.split("-")[1]
+    assert result.network.perceptual == "off in this preset"
     if name == "geoscaler-uvw":
         assert result.uvs.shape == small_mesh.uvs.shape
         assert result.uvs.min() >= 0 and result.uvs.max() <= 1
         areas = signed_areas(torch.from_numpy(result.uvs), torch.from_numpy(small_mesh.faces))
         before = signed_areas(torch.from_numpy(small_mesh.uvs), torch.from_numpy(small_mesh.faces))
         assert torch.all(areas * before > 0)
-        assert result.details["uv_shift_texels"]["max"] <= MAX_OFFSET * 2**0.5 + 1e-4
+        assert result.network.uv_shift_texels["max"] <= MAX_OFFSET * 2**0.5 + 1e-4
     else:
         assert result.uvs is None
 
@@ -511,8 +511,8 @@ def test_the_paper_preset_trains_with_the_perceptual_term_from_a_file(small_mesh
         },
     )
     result = run_method("geoscaler-gcm", small_mesh, 4, options, small_context(small_mesh, 1))
-    assert result.details["perceptual"] == f"VGG-19 from {vgg_file[0]}"
-    assert result.details["preset"] == "paper" and result.details["steps"] == 1
+    assert result.network.perceptual == f"VGG-19 from {vgg_file[0]}"
+    assert result.network.preset == "paper" and result.loop.steps == 1
     assert result.textures[0].shape == (16, 16, 3)
 
 

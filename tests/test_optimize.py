@@ -207,7 +207,7 @@ def test_direct_method_returns_an_8bit_texture_of_the_target_size():
     result = run_method("direct", mesh, SCALE, options, RunContext(renderer, validation))
     (texture,) = result.textures
     assert texture.dtype == np.uint8 and texture.shape == (16, 16, 3)
-    assert result.details["steps"] == 2 and result.seconds > 0
+    assert result.loop.steps == 2 and result.seconds > 0
 
 
 def test_cached_taps_render_exactly_what_the_renderer_renders(scene):

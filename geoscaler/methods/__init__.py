@@ -4,10 +4,15 @@ modules do: the filters first, then ``direct``, then the GeoScaler network and i
 
 from geoscaler.methods import baselines, direct, network  # noqa: F401  (they register)
 from geoscaler.methods.registry import (
+    LayoutFacts,
+    LoopFacts,
     Method,
     MethodOptions,
     MethodResult,
+    NetworkFacts,
     RunContext,
+    Shipping,
+    TrialFacts,
     default_steps,
     get_method,
     is_learned,
@@ -16,10 +21,15 @@ from geoscaler.methods.registry import (
 )
 
 __all__ = [
+    "LayoutFacts",
+    "LoopFacts",
     "Method",
     "MethodOptions",
     "MethodResult",
+    "NetworkFacts",
     "RunContext",
+    "Shipping",
+    "TrialFacts",
     "default_steps",
     "get_method",
     "is_learned",

@@ -11,7 +11,13 @@ from typing import Any
 from geoscaler.clock import Budget
 from geoscaler.color import linear_to_texture
 from geoscaler.mesh import TexturedMesh
-from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext, output_sizes_for
+from geoscaler.methods.registry import (
+    LoopFacts,
+    MethodOptions,
+    MethodResult,
+    RunContext,
+    output_sizes_for,
+)
 from geoscaler.optim.loop import ALONE, Model, OptimizeConfig, Phase, optimize
 from geoscaler.optim.losses import PerceptualTerm
 from geoscaler.optim.validation import Scores, Validation, validation_view_sets
@@ -45,7 +51,6 @@ def fit(
     started: float,
     keeps_uvs: bool = True,
     perceptual: PerceptualTerm | None = None,
-    details: Mapping[str, Any] | None = None,
     pool: ViewCache | None = None,
     start_scores: Scores | None = None,
     phase: Phase = ALONE,
@@ -61,7 +66,6 @@ def fit(
         started: the instant of the method's start on ``context.clock`` (its set-up counts).
         keeps_uvs: the model never moves the UVs (texture taps can be cached).
         perceptual: an extra loss term.
-        details: the method's own facts for the report, listed before the loop's.
         pool, start_scores: an earlier loop's training pool and the scores of the model's
             start, validated by it (:func:`geoscaler.optim.loop.optimize`).
         phase: where the loop stands in a run of several (the layout race).
@@ -86,20 +90,17 @@ def fit(
     )
     textures = [None if t is None else linear_to_texture(t) for t in result.textures]
     uvs = None if result.uvs is None else result.uvs.detach().cpu().numpy().astype("float32")
-    facts = {
-        "device": str(renderer.device),
-        "training_renderer": config.training_renderer,
-        **(details or {}),
-        "steps": result.steps,
-        "best_step": result.best_step,
-        "validation_psnr_fg": result.best_psnr,
-        "validation_scores": result.scores,
-        "clears_floor": result.clears_floor,
-        "baseline_scores": result.baselines,
-        "stopped_by": result.stopped_by,
-        "first_step_seconds": round(result.first_step_seconds, 3),
-        "training_views": result.training_views,
-        "validation_views": result.validation_views,
-        "backtracks": result.backtracks,
-    }
-    return MethodResult(textures, uvs, details=facts)
+    loop = LoopFacts(
+        steps=result.steps,
+        best_step=result.best_step,
+        validation_scores=result.scores,
+        clears_floor=result.clears_floor,
+        baseline_scores=result.baselines,
+        stopped_by=result.stopped_by,
+        first_step_seconds=round(result.first_step_seconds, 3),
+        training_views=result.training_views,
+        validation_views=result.validation_views,
+        backtracks=result.backtracks,
+    )
+    return MethodResult(textures, uvs, device=str(renderer.device),
+                        training_renderer=config.training_renderer, loop=loop)  # fmt: skip

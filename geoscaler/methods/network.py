@@ -31,7 +31,13 @@ from geoscaler.color import texture_to_linear
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods.learned import fit, loop_config, method_renderer
-from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext, register
+from geoscaler.methods.registry import (
+    MethodOptions,
+    MethodResult,
+    NetworkFacts,
+    RunContext,
+    register,
+)
 from geoscaler.nn.network import (
     VARIANTS,
     GeoScalerNet,
@@ -249,12 +255,7 @@ def geoscaler_network(
         perceptual = None if loss is None else PerceptualTerm(loss, preset.perceptual_weight)
 
     loop = loop_config(preset.optimize, options, context)
-    details = {
-        "variant": variant,
-        "preset": preset_name,
-        "parameters": parameter_count(model.network),
-        "perceptual": perceptual_note,
-    }
+    facts = NetworkFacts(variant, preset_name, parameter_count(model.network), perceptual_note)
     result = fit(
         mesh,
         rule,
@@ -265,10 +266,10 @@ def geoscaler_network(
         started,
         keeps_uvs=not config.uv_warper,
         perceptual=perceptual,
-        details=details,
     )
     if result.uvs is not None:
-        result.details["uv_shift_texels"] = uv_shift(mesh, result.uvs, result.textures)
+        facts.uv_shift_texels = uv_shift(mesh, result.uvs, result.textures)
+    result.network = facts
     return result
 
 

@@ -14,6 +14,7 @@ and each registers itself here.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -80,8 +81,112 @@ class RunContext:
 
 
 @dataclass
+class LoopFacts:
+    """What a learned method's optimisation loop did (the loop's result without its
+    candidate; :class:`~geoscaler.optim.loop.OptimizeResult`).
+
+    Attributes:
+        steps: steps taken (a race: by every layout's trial and the winner's continuation).
+        best_step: the step whose candidate is kept (0: the start).
+        validation_scores: set name -> mean PSNR-fg (dB) of the kept candidate.
+        clears_floor: the kept candidate is no worse than the best filter on every set.
+        baseline_scores: filter name -> its scores per set.
+        stopped_by: ``"steps"``, ``"time budget"``, ``"stopped"`` or ``"plateau"``.
+        first_step_seconds: seconds from the method's start to its first step's end (3
+            decimals; nan: no step).
+        training_views: training views cached; ``validation_views``: set name -> views
+            validated on.
+        backtracks: times the loop went back to its best candidate.
+    """
+
+    steps: int
+    best_step: int
+    validation_scores: Mapping[str, float]
+    clears_floor: bool
+    baseline_scores: dict[str, dict[str, float]]
+    stopped_by: str
+    first_step_seconds: float
+    training_views: int
+    validation_views: dict[str, int]
+    backtracks: int
+
+    @property
+    def validation_psnr_fg(self) -> float:
+        """The kept candidate's PSNR-fg on Q (dB; nan: none)."""
+        return self.validation_scores.get("Q", math.nan)
+
+
+@dataclass
+class TrialFacts:
+    """One layout's trial in the race of ``--uv auto``.
+
+    Attributes:
+        steps: the trial's steps; ``validation_psnr_fg``: its rank's Q (dB);
+        validation_sets: set name -> its mean PSNR-fg; shortfall_db: how far it falls below
+        the filters' floor on its worst set (0: it clears it); below_own_on: the sets on which
+        it is below the own layout's trial beyond the noise.
+    """
+
+    steps: int
+    validation_psnr_fg: float
+    validation_sets: dict[str, float]
+    shortfall_db: float
+    below_own_on: list[str]
+
+
+@dataclass
+class LayoutFacts:
+    """What ``--uv repack`` / ``auto`` did with the UV layout.
+
+    Attributes:
+        uv: the mode asked for.
+        used: the layout the result is in (``"keep"``, ``"repack"``, ``"unaligned"``).
+        planned: the planned new layout's facts (:attr:`Atlas.facts`), None where none was.
+        skipped: why no new layout was planned, if none was.
+        race: layout -> its trial, where layouts raced.
+    """
+
+    uv: str
+    used: str = "keep"
+    planned: dict[str, Any] | None = None
+    skipped: str | None = None
+    race: dict[str, TrialFacts] | None = None
+
+
+@dataclass
+class NetworkFacts:
+    """What the network method ran: its variant, preset, size and perceptual term, and how
+    far its UV warp moved the texels (``{"mean", "max"}`` texels; None: no warp)."""
+
+    variant: str
+    preset: str
+    parameters: int
+    perceptual: str
+    uv_shift_texels: dict[str, float] | None = None
+
+
+@dataclass
+class Shipping:
+    """What the job ships in place of a learned method's own result.
+
+    Attributes:
+        shipped: the method's name, or the filter that ships instead.
+        shortfall_db: how far the method's own result fell below the filters' floor on its
+            worst set (0: it clears it; None: not validated).
+        not_run: why the method was not run (the budget could not hold it), if it was not.
+        seconds_left: the budget's seconds left when it was not run.
+    """
+
+    shipped: str
+    shortfall_db: float | None = None
+    not_run: str | None = None
+    seconds_left: float | None = None
+
+
+@dataclass
 class MethodResult:
-    """What a method produced.
+    """What a method produced, and its facts for the report (typed; the report turns them
+    into JSON).
 
     Attributes:
         textures: per material, the ``(h, w, C)`` uint8 sRGB texture (None if untextured).
@@ -89,16 +194,30 @@ class MethodResult:
             corner (a new layout, :attr:`Atlas.uvs`), or None when the method keeps the
             mesh's own; :meth:`TexturedMesh.with_uvs` makes the mesh that ships.
         seconds: wall-clock time of the method (the job adds what it spent for it).
-        details: method-specific facts for the report (steps run, device, ...).
         layout: the new UV layout when the method repacked the charts (``uvs`` are its UVs;
             the export bakes every other map of the repacked materials into it), else None.
+        device, training_renderer: where and through what a learned method trained.
+        loop: what its loop did; ``layout_facts``: what ``--uv`` did; ``network``: what the
+            network method ran.
+        shipping: what the job ships for it (set by the job).
+        first_step_after_start: seconds from the job's start to the first step's end.
     """
 
     textures: list[np.ndarray | None]
     uvs: np.ndarray | None = None
     seconds: float = 0.0
-    details: dict[str, Any] = field(default_factory=dict)
     layout: Atlas | None = None
+    device: str | None = None
+    training_renderer: str | None = None
+    loop: LoopFacts | None = None
+    layout_facts: LayoutFacts | None = None
+    network: NetworkFacts | None = None
+    shipping: Shipping | None = None
+    first_step_after_start: float | None = None
+
+    def shipped(self, name: str) -> str:
+        """What ships for method ``name``: itself, or the filter the job chose instead."""
+        return name if self.shipping is None else self.shipping.shipped
 
 
 Run = Callable[[TexturedMesh, SizeRule, MethodOptions, RunContext], MethodResult]

@@ -26,7 +26,14 @@ from geoscaler.color import texture_to_linear
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods.learned import fit, loop_config
-from geoscaler.methods.registry import MethodOptions, MethodResult, RunContext, output_sizes_for
+from geoscaler.methods.registry import (
+    LayoutFacts,
+    MethodOptions,
+    MethodResult,
+    RunContext,
+    TrialFacts,
+    output_sizes_for,
+)
 from geoscaler.optim.loop import FINISH_MARGIN, OptimizeConfig, Phase
 from geoscaler.optim.validation import MIN_FROZEN, Validation, sets_below, validation_view_sets
 from geoscaler.render.cameras import Camera, sample_training_cameras
@@ -188,7 +195,7 @@ class Layout:
         config: OptimizeConfig,
         context: RunContext,
         started: float,
-        facts: dict,
+        facts: LayoutFacts | None,
         **handover: Any,
     ) -> MethodResult:
         """:func:`geoscaler.methods.learned.fit` in this layout (``handover``: its ``pool``
@@ -197,9 +204,8 @@ class Layout:
         if self.atlas is not None:
             on_event = _with_layout_uvs(context.on_event, self.renderer.uvs)
             context = replace(context, on_event=on_event)
-        result = fit(
-            mesh, rule, self.renderer, model, config, context, started, details=facts, **handover
-        )
+        result = fit(mesh, rule, self.renderer, model, config, context, started, **handover)
+        result.layout_facts = facts
         if self.atlas is None:
             return result
         result.uvs = self.atlas.uvs.copy()
@@ -237,7 +243,7 @@ def repacked_direct(
     validation = context.validation
     if validation is None:
         validation = Validation(validation_view_sets(renderer), sizes, clock=context.clock)
-    facts: dict[str, Any] = {"uv": mode}
+    facts = LayoutFacts(uv=mode)
     end = _method_end(config, context, started)
     atlases = _timely_layouts(mesh, rule, renderer, config, validation, started, end, facts,
                               context.clock)  # fmt: skip
@@ -274,7 +280,7 @@ def raced(
     config: OptimizeConfig,
     context: RunContext,
     started: float,
-    facts: dict,
+    facts: LayoutFacts,
 ) -> MethodResult:
     """A trial in each layout (``--uv auto``: the mesh's own and the new ones; ``repack``: the
     new ones, aligned and not), then the one whose trial validates best goes on from its best
@@ -297,9 +303,9 @@ def raced(
     """
     if len(layouts) == 1 or config.steps < len(layouts):
         name, layout = next(iter(layouts.items()))
-        facts["layout_used"] = name
+        facts.used = name
         if layout.atlas is not None:
-            facts["layout"] = layout.atlas.facts
+            facts.planned = layout.atlas.facts
         model = start_model(mesh, rule, layout.renderer, layout.starts)
         return layout.fit(mesh, rule, model, config, context, started, facts)
     end = _method_end(config, context, started)
@@ -310,15 +316,15 @@ def raced(
         if _stopped(context):
             break
     winner = _winner(race.results, layouts, facts)
-    first_step = next(iter(race.results.values())).details["first_step_seconds"]
+    first_step = next(iter(race.results.values())).loop.first_step_seconds
     best, layout, model = race.results[winner], layouts[winner], race.models[winner]
-    best_step = best.details["best_step"]
-    steps_left = config.steps - best.details["steps"]
+    best_step = best.loop.best_step
+    steps_left = config.steps - best.loop.steps
     finishing = FINISH_MARGIN * layout.validation.seconds_needed(2, False)
     no_time = end is not None and context.clock.now() + finishing >= end
     if _stopped(context) or steps_left < 1 or no_time:
-        best.details = {**facts, **best.details, "steps": race.steps}
-        best.details["first_step_seconds"] = first_step
+        best.loop = replace(best.loop, steps=race.steps, first_step_seconds=first_step)
+        best.layout_facts = facts
         return best
     device = layout.renderer.device
     model.restore(
@@ -327,7 +333,7 @@ def raced(
     pool = race.pools[winner]
     pool.views.cameras = list(cameras)  # the trial's loop stopped the pool's growth
     phase = _Phase(config, context, started, race.steps, first=False, last=True)
-    scores = best.details["validation_scores"]
+    scores = best.loop.validation_scores
     result = phase.fit(
         mesh,
         rule,
@@ -340,9 +346,13 @@ def raced(
         pool=pool,
         start_scores=scores,
     )
-    result.details["steps"] += race.steps
-    result.details["best_step"] = result.details["best_step"] or best_step  # 0: its start
-    result.details["first_step_seconds"] = first_step
+    loop = result.loop
+    result.loop = replace(
+        loop,
+        steps=loop.steps + race.steps,
+        best_step=loop.best_step or best_step,  # 0: its start, the trial's best
+        first_step_seconds=first_step,
+    )
     return result
 
 
@@ -354,7 +364,7 @@ def _timely_layouts(
     validation: Validation,
     started: float,
     end: float | None,
-    facts: dict,
+    facts: LayoutFacts,
     clock: Clock,
 ) -> list[Atlas]:
     """The new layouts (:data:`NEW_LAYOUTS`), planned and baked by :data:`PREPARING_SHARE` of
@@ -362,7 +372,7 @@ def _timely_layouts(
     aligned its charts to the original's mip blocks (:func:`~geoscaler.uv.atlas.alignment_for`)
     the unaligned one too, time allowing, so that a race weighs them; none where the layout
     does not move a chart or there is no time for it (the reason in
-    ``facts["layout_skipped"]``). The first one's facts go in ``facts["layout"]``. Each bake
+    ``facts.skipped``). The first one's facts go in ``facts.planned``. Each bake
     is priced first (:func:`bake_seconds`), so each plan's deadline leaves the bakes their
     time."""
     planned_by = baking = None
@@ -380,7 +390,7 @@ def _timely_layouts(
         budget = None if deadline is None else unlimited(clock).until(deadline)
         atlas = plan_layout(mesh, rule, renderer, config, budget, align)
         if align:
-            facts["layout"] = atlas.facts
+            facts.planned = atlas.facts
         if not atlas.moved:
             return atlases
         if deadline is None or clock.now() <= deadline:
@@ -388,7 +398,7 @@ def _timely_layouts(
         if not atlas.aligned:
             break
     if not atlases:
-        facts["layout_skipped"] = "the time budget left no time to plan and bake a new layout"
+        facts.skipped = "the time budget left no time to plan and bake a new layout"
     return atlases
 
 
@@ -438,36 +448,37 @@ class _Trials:
         pool = training_views(layout.renderer, self.cameras, layout.validation.sizes, True)
         result = phase.fit(mesh, rule, layout, model, deadline, 0.0, self.steps_each, pool=pool)
         self.results[name], self.models[name], self.pools[name] = result, model, pool
-        self.steps += result.details["steps"]
+        self.steps += result.loop.steps
         if first:
-            self.steps_each = max(result.details["steps"], 1)
+            self.steps_each = max(result.loop.steps, 1)
 
 
-def _winner(trials: dict[str, MethodResult], layouts: dict[str, Layout], facts: dict) -> str:
+def _winner(
+    trials: dict[str, MethodResult], layouts: dict[str, Layout], facts: LayoutFacts
+) -> str:
     """The layout whose trial ranks first on the validation (a tie keeps the mesh's own) among
     those not below the mesh's own layout's trial on any set beyond the noise
-    (:func:`~geoscaler.optim.validation.sets_below`): a new layout better on Q but worse far away
-    does not replace the own one. Each trial's steps, Q, PSNR-fg on every set, shortfall and
-    the sets it is below the own layout on go into ``facts["race"]``."""
-    scores = {name: trial.details["validation_scores"] for name, trial in trials.items()}
+    (:func:`~geoscaler.optim.validation.sets_below`): a new layout better on Q but worse far
+    away does not replace the own one. Each trial's facts go into ``facts.race``."""
+    scores = {name: trial.loop.validation_scores for name, trial in trials.items()}
     ranks = {name: layouts[name].validation.rank(scores[name]) for name in trials}
     own = scores.get("keep")
     below = {n: [] if own is None or n == "keep" else sets_below(scores[n], own) for n in trials}
-    facts["race"] = {
-        name: {
-            "steps": trial.details["steps"],
-            "validation_psnr_fg": round(ranks[name][1], 4),
-            "validation_sets": {n: round(v, 4) for n, v in scores[name].items()},
-            "shortfall_db": round(ranks[name][0], 4),
-            "below_own_on": below[name],
-        }
+    facts.race = {
+        name: TrialFacts(
+            steps=trial.loop.steps,
+            validation_psnr_fg=round(ranks[name][1], 4),
+            validation_sets={n: round(v, 4) for n, v in scores[name].items()},
+            shortfall_db=round(ranks[name][0], 4),
+            below_own_on=below[name],
+        )
         for name, trial in trials.items()
     }
     eligible = [name for name in ranks if not below[name]]
     winner = max(eligible, key=lambda name: (ranks[name], name == "keep"))
-    facts["layout_used"] = winner
+    facts.used = winner
     if layouts[winner].atlas is not None:
-        facts["layout"] = layouts[winner].atlas.facts
+        facts.planned = layouts[winner].atlas.facts
     return winner
 
 
@@ -505,7 +516,7 @@ class _Phase:
         loop_end: float | None,
         reserve: float,
         steps: int,
-        facts: dict | None = None,
+        facts: LayoutFacts | None = None,
         **handover: Any,
     ) -> MethodResult:
         """:meth:`Layout.fit` for at most ``steps`` steps, its loop ending by ``loop_end``
@@ -521,7 +532,7 @@ class _Phase:
                 config = replace(config, time_budget=loop_end + reserve - now)
         context = replace(self.context, reserve=reserve)
         phase = Phase(self.steps_before, self.config.steps, self.started, self.first, self.last)
-        return layout.fit(mesh, rule, model, config, context, start, facts or {}, phase=phase,
+        return layout.fit(mesh, rule, model, config, context, start, facts, phase=phase,
                           **handover)  # fmt: skip
 
 

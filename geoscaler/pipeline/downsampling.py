@@ -227,7 +227,7 @@ def run_job(
         job.clock,
     )
     (observer or JobObserver()).stage("writing", 0, 1)
-    shipped = done.result.details.get("shipped", job.method)
+    shipped = done.result.shipped(job.method)
     written, done.maps = export(
         job.mesh, done.result, job.output, job.plan, shipped, job.force, job.image_format
     )

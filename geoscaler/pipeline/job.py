@@ -19,7 +19,7 @@ A :class:`JobObserver` watches a job (the CLI's progress bars, the app's live st
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +32,14 @@ from geoscaler.io import (
     prepare_folder,
 )
 from geoscaler.mesh import Material, TexturedMesh, check_geometry
-from geoscaler.methods import MethodOptions, MethodResult, RunContext, is_learned, run_method
+from geoscaler.methods import (
+    MethodOptions,
+    MethodResult,
+    RunContext,
+    Shipping,
+    is_learned,
+    run_method,
+)
 from geoscaler.optim.events import Controller, ProgressEvent
 from geoscaler.optim.validation import MIN_FROZEN, Validation, validation_view_sets
 from geoscaler.pipeline.arguments import check_distances, check_method, check_rules
@@ -231,9 +238,9 @@ class _MethodRuns:
                 return not_run(name, outputs, seconds)
         method_start = clock.now()
         result = _run(self.mesh, rule, name, self.options, context, seconds, self.observer)
-        if budget is not None and "first_step_seconds" in result.details:
-            first = method_start - budget.started_at + result.details["first_step_seconds"]
-            result.details["first_step_after_start"] = round(first, 3)
+        if budget is not None and result.loop is not None:
+            first = method_start - budget.started_at + result.loop.first_step_seconds
+            result.first_step_after_start = round(first, 3)
         return no_worse_than_filters(name, result, validation, outputs)
 
     def finish(self, distances: Sequence[float]) -> Comparison:
@@ -379,14 +386,14 @@ def learned_fits(validation: Validation, budget: float | None, reserve: float) -
 def not_run(name: str, filters: dict[str, MethodResult], budget: float) -> MethodResult:
     """What ships for a learned method the budget had no time for (:func:`learned_fits`): the
     filter it starts from (Lanczos; bicubic in a job without it), unvalidated, with the reason
-    in ``details["not_run"]``."""
+    in its shipping facts."""
     start = "lanczos" if "lanczos" in filters else GAIN_REFERENCE
     reason = (
         f"the time budget ({budget:.1f} s left after loading and the filters) cannot hold "
         f"the validation {name} owes even without a step"
     )
-    details = {"shipped": start, "not_run": reason, "time_budget": budget}
-    return MethodResult(list(filters[start].textures), None, 0.0, details)
+    shipping = Shipping(start, not_run=reason, seconds_left=budget)
+    return MethodResult(list(filters[start].textures), shipping=shipping)
 
 
 def _cache_for_rows(
@@ -449,25 +456,23 @@ def no_worse_than_filters(
 
     Args:
         name: the learned method.
-        result: its result; ``details["validation_scores"]`` from the loop (a method without
-            them ships as it is).
+        result: its result, with its loop's facts (a method without them ships as it is).
         validation: the validation sets, frozen, with the filters as baselines.
         filters: filter name -> its result, at the same scale.
 
     Returns:
-        The result to ship; ``details["shipped"]`` names what ships, ``["shortfall_db"]`` is
-        how far the method's own result fell below the floor.
+        The result to ship, whose :class:`~geoscaler.methods.registry.Shipping` names what
+        ships and how far the method's own result fell below the floor.
     """
-    scores = {name: result.details.get("validation_scores"), **validation.baseline_scores()}
-    if scores[name] is None:
-        result.details["shipped"] = name
+    if result.loop is None:
+        result.shipping = Shipping(name)
         return result
+    scores = {name: result.loop.validation_scores, **validation.baseline_scores()}
     best = max(scores, key=lambda candidate: validation.rank(scores[candidate]))
-    result.details["shipped"] = best
-    result.details["shortfall_db"] = validation.shortfall(scores[name])
+    result.shipping = Shipping(best, shortfall_db=validation.shortfall(scores[name]))
     if best == name:
         return result
-    return MethodResult(list(filters[best].textures), None, result.seconds, result.details)
+    return replace(result, textures=list(filters[best].textures), uvs=None, layout=None)
 
 
 def _run(
@@ -510,16 +515,19 @@ class Downsampled:
 
     Attributes:
         result: the method's textures as they ship (8-bit, alpha re-attached), UVs, seconds
-            (caching of Q included for learned methods) and details.
+            (caching of Q included for learned methods) and facts.
         comparison: the rows on Q: the method first, then bicubic and Lanczos, each with its
             ``gain_db`` over bicubic; the outputs (for pictures).
-        details: the method's details plus how Q was used.
+        learned: the method is learned; then ``time_budget`` and ``steps_limit`` are what it
+            was given (None: none).
         maps: every texture of the asset as it ships (set by :func:`run_job`).
     """
 
     result: MethodResult
     comparison: Comparison
-    details: dict[str, Any]
+    learned: bool = False
+    time_budget: float | None = None
+    steps_limit: int | None = None
     maps: list[ShippedMap] = field(default_factory=list)
 
     @property
@@ -550,8 +558,6 @@ def downsample(
     )
     (rule,) = check_rules([scale])
     result = comparison.outputs[method, rule.label]
-    details = dict(result.details)
-    if is_learned(method):
-        details["time_budget"] = options.time_budget
-        details["steps_limit"] = options.steps
-    return Downsampled(result, comparison, details)
+    if not is_learned(method):
+        return Downsampled(result, comparison)
+    return Downsampled(result, comparison, True, options.time_budget, options.steps)

@@ -58,7 +58,7 @@ def protocol_row(
         "texture_bytes": nbytes,
         **{key: metrics[key] for key in METRIC_NAMES},
         "seconds": result.seconds,
-        "shipped": result.details.get("shipped", name),
+        "shipped": result.shipped(name),
     }
 
 
@@ -77,5 +77,5 @@ def validation_row(
         "texture_bytes": nbytes,
         **{key: metrics[key] for key in METRIC_NAMES},
         "seconds": result.seconds,
-        "shipped": result.details.get("shipped", name),
+        "shipped": result.shipped(name),
     }

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Sequence
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +17,7 @@ import numpy as np
 import torch
 
 from geoscaler.mesh import TexturedMesh
+from geoscaler.methods import LayoutFacts, LoopFacts, MethodResult, Shipping
 from geoscaler.pipeline.downsampling import Job
 from geoscaler.pipeline.job import Comparison, Downsampled
 from geoscaler.pipeline.rows import texture_facts
@@ -180,11 +182,79 @@ def report_document(
             "device": describe_device(done.comparison.device),
             "seconds": round(seconds, 3),
             "results": done.rows,
-            "details": done.details,
+            "details": downsample_details(done),
             "maps": [map_facts(shipped) for shipped in done.maps],
             "totals": asset_totals(job.mesh.source_files, written, done.maps),
         }
     )
+
+
+def method_details(result: MethodResult) -> dict[str, Any]:
+    """A method's facts as the report's ``details`` holds them: where and how it trained,
+    the network's facts, what ``--uv`` did, what its loop did, what shipped."""
+    details: dict[str, Any] = {}
+    if result.device is not None:
+        details["device"] = result.device
+    if result.training_renderer is not None:
+        details["training_renderer"] = result.training_renderer
+    if result.network is not None:
+        network = asdict(result.network)
+        details.update({k: v for k, v in network.items() if v is not None})
+    if result.layout_facts is not None:
+        details.update(_layout_details(result.layout_facts))
+    if result.loop is not None:
+        details.update(_loop_details(result.loop))
+    if result.shipping is not None:
+        details.update(_shipping_details(result.shipping))
+    if result.first_step_after_start is not None:
+        details["first_step_after_start"] = result.first_step_after_start
+    return details
+
+
+def downsample_details(done: Downsampled) -> dict[str, Any]:
+    """:func:`method_details` of a downsampling job's result, with a learned method's budget
+    and step limit."""
+    details = method_details(done.result)
+    if done.learned:
+        details.update(time_budget=done.time_budget, steps_limit=done.steps_limit)
+    return details
+
+
+def _loop_details(loop: LoopFacts) -> dict[str, Any]:
+    return {
+        "steps": loop.steps,
+        "best_step": loop.best_step,
+        "validation_psnr_fg": loop.validation_psnr_fg,
+        "validation_scores": dict(loop.validation_scores),
+        "clears_floor": loop.clears_floor,
+        "baseline_scores": loop.baseline_scores,
+        "stopped_by": loop.stopped_by,
+        "first_step_seconds": loop.first_step_seconds,
+        "training_views": loop.training_views,
+        "validation_views": loop.validation_views,
+        "backtracks": loop.backtracks,
+    }
+
+
+def _layout_details(facts: LayoutFacts) -> dict[str, Any]:
+    details: dict[str, Any] = {"uv": facts.uv}
+    if facts.planned is not None:
+        details["layout"] = facts.planned
+    if facts.skipped is not None:
+        details["layout_skipped"] = facts.skipped
+    details["layout_used"] = facts.used
+    if facts.race is not None:
+        details["race"] = {name: asdict(trial) for name, trial in facts.race.items()}
+    return details
+
+
+def _shipping_details(shipping: Shipping) -> dict[str, Any]:
+    details: dict[str, Any] = {"shipped": shipping.shipped}
+    if shipping.shortfall_db is not None:
+        details["shortfall_db"] = shipping.shortfall_db
+    if shipping.not_run is not None:
+        details.update(not_run=shipping.not_run, time_budget=shipping.seconds_left)
+    return details
 
 
 def map_facts(shipped: ShippedMap) -> dict[str, Any]:
