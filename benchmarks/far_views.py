@@ -76,7 +76,7 @@ def main() -> int:
         atlas = plan_layout(mesh, rule, renderer, config)
         baked = baked_maps(mesh, atlas, references, sizes)
         baked = [b if b is not None else o for b, o in zip(baked, own, strict=True)]
-        print(f"layout: k {atlas.facts['k']}, aligned to {atlas.facts['alignment_texels']}")
+        print(f"layout: k {atlas.facts.k}, aligned to {atlas.facts.alignment_texels}")
         candidates["bake"] = (baked, renderer.relaid(atlas.uvs).uvs)  # (F, 3, 2) corners
     for distance in args.distance:
         views = []

@@ -101,8 +101,8 @@ def mesh_rows(entry, scales: list[int], device: str) -> list[dict]:
             "padding": min(g["padding"] for g in groups),
             "kept": atlas.kept,
             **{key: average(key) for key in ("k", "k_area", "k_side")},
-            "k_whole": atlas.facts["k_whole"],
-            "vertices_added": atlas.facts["vertices_added"],
+            "k_whole": atlas.facts.k_whole,
+            "vertices_added": atlas.facts.vertices_added,
         }
         row["bound"] = min(row["k_area"], row["k_side"])
         row["binds"] = "area" if row["k_area"] <= row["k_side"] else "side"

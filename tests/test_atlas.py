@@ -111,13 +111,13 @@ def test_repack_raises_the_density_of_a_sparse_atlas():
     mesh = cube_mesh()
     atlas = repack(mesh, [(SIZE, SIZE)], footprint_ids(mesh, [10] * 6), 256)
     assert atlas.moved and atlas.kept == {}
-    assert atlas.facts["charts"] == 6
+    assert atlas.facts.charts == 6
     # six squares of 0.12 side: three abreast, each up to a third of the side less padding
-    assert 1.5 < atlas.facts["k"] < 64 / 3 / (0.12 * 64)
+    assert 1.5 < atlas.facts.k < 64 / 3 / (0.12 * 64)
     assert atlas.uvs.min() >= 0 and atlas.uvs.max() <= 1
     assert atlas.uvs.shape == (len(mesh.faces), 3, 2)  # a UV per face corner
-    assert atlas.facts["charts_cut"] == 0 and not atlas.facts["cut"]  # no chart spans half
-    assert atlas.facts["vertices_added"] == 0
+    assert atlas.facts.charts_cut == 0 and not atlas.facts.cut  # no chart spans half
+    assert atlas.facts.vertices_added == 0
     assert len(mesh.with_uvs(atlas.uvs).uvs) == len(mesh.uvs)  # every vertex keeps one UV
 
 
@@ -295,9 +295,9 @@ def test_the_cut_is_not_planned_where_it_would_end_past_the_deadline(monkeypatch
     monkeypatch.setattr(atlas_module, "plan_charts", slow_plan)
     budget = Budget(clock, 0.0, 1000.0)
     atlas = repack(ribbon, [(SIZE, SIZE)], every_face, 256, budget=budget)
-    assert atlas.facts["charts_cut"] == 1 and not atlas.facts["cut"]
-    assert atlas.facts["cut_skipped"] == "the time budget left no time to plan the cut"
-    assert "k_cut" not in atlas.facts and atlas.facts["k"] == atlas.facts["k_whole"]
+    assert atlas.facts.charts_cut == 1 and not atlas.facts.cut
+    assert atlas.facts.cut_skipped == "the time budget left no time to plan the cut"
+    assert atlas.facts.k_cut is None and atlas.facts.k == atlas.facts.k_whole
 
 
 def test_normal_mapped_charts_never_turn_or_mirror():
@@ -434,11 +434,11 @@ def test_a_chart_spanning_the_atlas_is_cut_where_the_pieces_pack_denser():
     ribbon = ribbon_mesh(quads=16)
     every_face = [torch.arange(len(ribbon.faces))]
     atlas = repack(ribbon, [(SIZE, SIZE)], every_face, 256)
-    assert atlas.facts["charts_cut"] == 1 and atlas.facts["cut"]
-    assert atlas.facts["k"] == atlas.facts["k_cut"] >= CUT_GAIN * atlas.facts["k_whole"]
-    pieces = atlas.facts["charts"]
+    assert atlas.facts.charts_cut == 1 and atlas.facts.cut
+    assert atlas.facts.k == atlas.facts.k_cut >= CUT_GAIN * atlas.facts.k_whole
+    pieces = atlas.facts.charts
     assert pieces > 1
-    assert atlas.facts["vertices_added"] == 2 * (pieces - 1)  # two vertices on each cut
+    assert atlas.facts.vertices_added == 2 * (pieces - 1)  # two vertices on each cut
     assert atlas_problems(ribbon, atlas) == []
     cut = ribbon.with_uvs(atlas.uvs)
     np.testing.assert_array_equal(chart_labels(cut), atlas.chart_of_face)  # pieces as charts

@@ -128,7 +128,7 @@ def test_where_charts_are_aligned_the_race_weighs_the_unaligned_layout_too():
     winner = max(ranks, key=lambda name: (ranks[name], name == "keep"))
     assert method_details(result)["layout_used"] == winner
     if winner != "keep":  # the report describes the layout that went on
-        assert method_details(result)["layout"] == result.layout.facts
+        assert result.layout_facts.planned == result.layout.facts
         assert result.layout.aligned == (winner == "repack")
 
 

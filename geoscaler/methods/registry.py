@@ -30,7 +30,7 @@ from geoscaler.protocol import REFERENCE_MAX_SIZE
 from geoscaler.render.renderer import Renderer
 from geoscaler.resize.filters import output_sizes, reference_textures
 from geoscaler.resize.sizes import SizeRule, check_scale
-from geoscaler.uv.atlas import Atlas
+from geoscaler.uv.atlas import Atlas, AtlasFacts
 
 
 @dataclass(frozen=True)
@@ -148,7 +148,7 @@ class LayoutFacts:
 
     uv: str
     used: str = "keep"
-    planned: dict[str, Any] | None = None
+    planned: AtlasFacts | None = None
     skipped: str | None = None
     race: dict[str, TrialFacts] | None = None
 

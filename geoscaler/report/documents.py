@@ -239,7 +239,8 @@ def _loop_details(loop: LoopFacts) -> dict[str, Any]:
 def _layout_details(facts: LayoutFacts) -> dict[str, Any]:
     details: dict[str, Any] = {"uv": facts.uv}
     if facts.planned is not None:
-        details["layout"] = facts.planned
+        planned = asdict(facts.planned)
+        details["layout"] = {key: value for key, value in planned.items() if value is not None}
     if facts.skipped is not None:
         details["layout_skipped"] = facts.skipped
     details["layout_used"] = facts.used

@@ -28,7 +28,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -93,6 +93,44 @@ class AtlasError(PackingError):
 
 
 @dataclass
+class AtlasFacts:
+    """What the report says of a new layout.
+
+    Attributes:
+        charts: charts moved.
+        k: gain in linear texel density (new texels per old texel at the same texture size),
+            averaged geometrically over the moved charts weighted by their screen footprint;
+            ``k_area``: weighted by UV area instead.
+        padding_texels: texels kept empty between charts; ``alignment_texels``: the block
+            size chart offsets are multiples of (1: not aligned).
+        mirrored_by_packer: charts the packer transposed; ``tiling_charts``: charts spanning
+            more than one texture repeat; ``mirrored_charts_in_original``: charts mirrored in
+            the original layout.
+        kept: material name -> why its layout is kept.
+        charts_cut, k_whole, cut, vertices_added, cut_skipped, k_cut: what cutting long charts
+            did (:func:`repack`; None where the layout was planned without it): charts too
+            long to leave whole, the whole charts' ``k``, whether the cut layout is the one
+            taken, vertices it added, why it was not planned, its ``k``.
+    """
+
+    charts: int
+    k: float
+    k_area: float
+    padding_texels: int
+    alignment_texels: int
+    mirrored_by_packer: int
+    tiling_charts: int
+    mirrored_charts_in_original: int
+    kept: dict[str, str]
+    charts_cut: int | None = None
+    k_whole: float | None = None
+    cut: bool | None = None
+    vertices_added: int | None = None
+    cut_skipped: str | None = None
+    k_cut: float | None = None
+
+
+@dataclass
 class Atlas:
     """A mesh's new UV layout.
 
@@ -125,7 +163,7 @@ class Atlas:
     groups: list[list[int]]
     kept: dict[str, str] = field(default_factory=dict)
     footprint: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    facts: dict = field(default_factory=dict)
+    facts: AtlasFacts | None = None
     alignments: list[int] = field(default_factory=list)
 
     @property
@@ -354,20 +392,21 @@ def repack(
     started = budget.now()
     whole = plan_charts(mesh, sizes, charts, tri_ids, samples_per_side, detail, budget, align)
     longest = cut_lengths(mesh, whole, charts)
-    facts = {"charts_cut": int(np.isfinite(longest).sum()), "k_whole": whole.facts["k"]}
-    atlas = whole
+    charts_cut = int(np.isfinite(longest).sum())
+    atlas, cut_skipped, k_cut = whole, None, None
     seconds = budget.now() - started  # what the cut's plan costs too, about
-    if facts["charts_cut"] and not budget.fits(seconds):
-        facts["cut_skipped"] = "the time budget left no time to plan the cut"
-    elif facts["charts_cut"]:
+    if charts_cut and not budget.fits(seconds):
+        cut_skipped = "the time budget left no time to plan the cut"
+    elif charts_cut:
         pieces = cut_charts(mesh, charts, longest)
         cut = plan_charts(mesh, sizes, pieces, tri_ids, samples_per_side, detail, budget, align)
-        facts["k_cut"] = cut.facts["k"]
-        if cut.groups == whole.groups and cut.facts["k"] >= CUT_GAIN * whole.facts["k"]:
+        k_cut = cut.facts.k
+        if cut.groups == whole.groups and cut.facts.k >= CUT_GAIN * whole.facts.k:
             atlas = cut  # (a group the cut plan could not pack would make k incomparable)
-    facts["cut"] = atlas is not whole
-    facts["vertices_added"] = len(mesh.with_uvs(atlas.uvs).uvs) - len(mesh.uvs)
-    atlas.facts.update(facts)
+    added = len(mesh.with_uvs(atlas.uvs).uvs) - len(mesh.uvs)
+    atlas.facts = replace(atlas.facts, charts_cut=charts_cut, k_whole=whole.facts.k,
+                          cut=atlas is not whole, vertices_added=added,
+                          cut_skipped=cut_skipped, k_cut=k_cut)  # fmt: skip
     return atlas
 
 
@@ -505,27 +544,24 @@ def weighted_gain(scales: np.ndarray, weights: np.ndarray) -> float:
 
 def layout_facts(
     mesh: TexturedMesh, atlas: Atlas, charts: np.ndarray, chart_area: np.ndarray
-) -> dict:
-    """What the report says of a layout: charts moved, density gains, the original's quirks.
-
-    ``k`` is the gain in linear texel density (new texels per old texel, the same texture
-    size) averaged geometrically over the charts weighted by their screen footprint; ``k_area``
-    weighted by UV area instead."""
+) -> AtlasFacts:
+    """What the report says of a layout: charts moved, density gains, the original's quirks
+    (:class:`AtlasFacts`)."""
     moved = np.unique(atlas.chart_of_face[atlas.chart_of_face >= 0])
     scales = atlas.scales[moved]
     _, extent = chart_boxes(mesh, charts, len(chart_area))
     signed = np.bincount(charts, uv_areas(mesh.uvs, mesh.faces), minlength=len(chart_area))
-    return {
-        "charts": int(len(moved)),
-        "k": round(weighted_gain(scales, atlas.footprint[moved]), 4),
-        "k_area": round(weighted_gain(scales, chart_area[moved]), 4),
-        "padding_texels": atlas.padding,
-        "alignment_texels": max(atlas.alignments, default=1),
-        "mirrored_by_packer": int(atlas.mirrored[moved].sum()),
-        "tiling_charts": int((extent[moved] > 1.0).any(axis=1).sum()),
-        "mirrored_charts_in_original": int((signed[moved] < 0).sum()),
-        "kept": dict(atlas.kept),
-    }
+    return AtlasFacts(
+        charts=int(len(moved)),
+        k=round(weighted_gain(scales, atlas.footprint[moved]), 4),
+        k_area=round(weighted_gain(scales, chart_area[moved]), 4),
+        padding_texels=atlas.padding,
+        alignment_texels=max(atlas.alignments, default=1),
+        mirrored_by_packer=int(atlas.mirrored[moved].sum()),
+        tiling_charts=int((extent[moved] > 1.0).any(axis=1).sum()),
+        mirrored_charts_in_original=int((signed[moved] < 0).sum()),
+        kept=dict(atlas.kept),
+    )
 
 
 # -------------------------------------------------------------------------------------- guards
