@@ -25,7 +25,7 @@ from geoscaler.io import load_mesh
 from geoscaler.methods import run_method
 from geoscaler.methods.direct import DEFAULT_CONFIG, lanczos_texel_model
 from geoscaler.methods.registry import RunContext
-from geoscaler.optim.loop import TRAINING_RANGES, OptimizeConfig, optimize
+from geoscaler.optim.loop import TRAINING_RANGES, LoopSetup, OptimizeConfig, optimize
 from geoscaler.optim.validation import Validation
 from geoscaler.protocol import PROTOCOL_EVALUATION
 from geoscaler.render.cameras import sample_training_cameras, view_set_cameras
@@ -64,7 +64,7 @@ def gains(path: Path, scale: int, steps: list[int], pool_views: int) -> dict[str
                 steps=count, ssim_weight=0.0, validate_every=count, seed=0, **setting
             )
             model = lanczos_texel_model(mesh, scale, renderer)
-            result = optimize(renderer, model, config, validation, pool=pool)
+            result = optimize(renderer, model, config, validation, LoopSetup(pool=pool))
             found.setdefault(name, []).append(result.history[-1]["validation_psnr_fg"] - floor)
     return found
 

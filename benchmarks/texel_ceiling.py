@@ -32,7 +32,7 @@ from geoscaler.io import load_mesh
 from geoscaler.methods import run_method
 from geoscaler.methods.direct import lanczos_texel_model
 from geoscaler.methods.registry import RunContext
-from geoscaler.optim.loop import OptimizeConfig, optimize
+from geoscaler.optim.loop import LoopSetup, OptimizeConfig, optimize
 from geoscaler.optim.validation import Validation
 from geoscaler.pipeline.downsampling import product_evaluation
 from geoscaler.protocol import PROTOCOL_EVALUATION
@@ -66,7 +66,7 @@ def ceiling_row(
     config = OptimizeConfig(steps=steps, lr=lr, ssim_weight=0.0, validate_every=steps)
     model = lanczos_texel_model(mesh, scale, renderer)
     validation = Validation({"Q": views.views}, views.sizes)  # Q alone: no floor, no guards
-    result = optimize(renderer, model, config, validation, training_cameras=cameras)
+    result = optimize(renderer, model, config, validation, LoopSetup(training_cameras=cameras))
     textures = [None if t is None else linear_to_texture(t) for t in result.textures]
     psnr["ceiling"] = float(views.score(textures)["psnr_fg"].mean())
     return {

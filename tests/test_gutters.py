@@ -10,7 +10,7 @@ import torch
 from geoscaler.color import texture_to_linear
 from geoscaler.mesh import Material, TexturedMesh, compute_vertex_normals, weld_points
 from geoscaler.methods.direct import TexelModel
-from geoscaler.optim.loop import OptimizeConfig, optimize
+from geoscaler.optim.loop import LoopSetup, OptimizeConfig, optimize
 from geoscaler.optim.validation import Validation, validation_view_sets
 from geoscaler.protocol import Evaluation
 from geoscaler.render.cameras import Camera, sample_extent
@@ -101,7 +101,7 @@ def test_the_shipped_gutters_depend_only_on_the_layout(pool):
     cameras = [Camera((math.sin(a), 0.2, math.cos(a)), 2.0) for a in (0.0, 0.5, -0.5)][:pool]
     config = OptimizeConfig(steps=3, views_per_step=pool, validate_every=1, lr=0.05)
     validation = Validation(validation_view_sets(renderer, 2), sizes)
-    result = optimize(renderer, model, config, validation, training_cameras=cameras)
+    result = optimize(renderer, model, config, validation, LoopSetup(training_cameras=cameras))
     (mask,) = reachable_masks(mesh, sizes, 4.0, renderer.resolution)  # farthest: far guards
     texture = result.textures[0]
     assert 0.5 < mask.float().mean() < 0.75  # the chart's half, and what its footprint reaches

@@ -15,6 +15,7 @@ from geoscaler.methods.direct import TexelModel
 from geoscaler.optim.events import Controller
 from geoscaler.optim.loop import (
     FINISH_MARGIN,
+    LoopSetup,
     OptimizeConfig,
     _Best,
     optimize,
@@ -123,7 +124,7 @@ def test_the_loop_trains_on_the_cameras_it_is_given(scene):
         small_config(steps=1),
         on_event=lambda event: cached.append(event.total) if event.phase == "caching" else None,
         validation=fresh_validation(scene),
-        training_cameras=views["Q"].cameras[:3],
+        setup=LoopSetup(training_cameras=views["Q"].cameras[:3]),
     )
     assert cached == [3, 3, 3] and result.training_views == 3
 
@@ -133,14 +134,15 @@ def test_a_loop_can_take_over_an_earlier_loops_pool_and_validated_start(scene):
     validation = fresh_validation(scene)
     pool = training_views(renderer, views["Q"].cameras[:4], validation.sizes, True)
     model = lanczos_model(mesh)
-    first = optimize(renderer, model, small_config(steps=2), validation, pool=pool)
+    first = optimize(renderer, model, small_config(steps=2), validation, LoopSetup(pool=pool))
     assert len(pool) == 4 and len(pool.taps) == 4
     model.restore(first.textures)
     validated = []
     counting = validation.psnr
     validation.psnr = lambda *args: validated.append(1) or counting(*args)
     second = optimize(
-        renderer, model, small_config(steps=1), validation, pool=pool, start_scores=first.scores
+        renderer, model, small_config(steps=1), validation,
+        LoopSetup(pool=pool, start_scores=first.scores),
     )
     assert len(validated) == 1  # its last state only: the start's scores were handed over
     assert second.training_views == 4 and len(pool) == 4  # nothing cached again
@@ -172,7 +174,8 @@ def test_a_controller_stops_the_loop_from_outside(scene):
             controller.stop()
 
     result = optimize(
-        renderer, lanczos_model(mesh), small_config(), fresh_validation(scene), on_event, controller
+        renderer, lanczos_model(mesh), small_config(), fresh_validation(scene),
+        on_event=on_event, controller=controller,
     )
     assert result.steps == 4 and result.stopped_by == "stopped"
     phases = [e.phase for e in events]

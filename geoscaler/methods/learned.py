@@ -18,11 +18,9 @@ from geoscaler.methods.registry import (
     RunContext,
     output_sizes_for,
 )
-from geoscaler.optim.loop import ALONE, Model, OptimizeConfig, Phase, optimize
-from geoscaler.optim.losses import PerceptualTerm
-from geoscaler.optim.validation import Scores, Validation, validation_view_sets
+from geoscaler.optim.loop import PLAIN, LoopSetup, Model, OptimizeConfig, optimize
+from geoscaler.optim.validation import Validation, validation_view_sets
 from geoscaler.render.renderer import Renderer
-from geoscaler.render.views import ViewCache
 from geoscaler.resize.sizes import SizeRule
 
 
@@ -49,11 +47,7 @@ def fit(
     config: OptimizeConfig,
     context: RunContext,
     started: float,
-    keeps_uvs: bool = True,
-    perceptual: PerceptualTerm | None = None,
-    pool: ViewCache | None = None,
-    start_scores: Scores | None = None,
-    phase: Phase = ALONE,
+    setup: LoopSetup = PLAIN,
 ) -> MethodResult:
     """Optimise ``model`` and return its best validated candidate as 8-bit textures (and UVs).
 
@@ -64,11 +58,8 @@ def fit(
         config: the loop's settings.
         context: validation views, controller and progress callback of the job.
         started: the instant of the method's start on ``context.clock`` (its set-up counts).
-        keeps_uvs: the model never moves the UVs (texture taps can be cached).
-        perceptual: an extra loss term.
-        pool, start_scores: an earlier loop's training pool and the scores of the model's
-            start, validated by it (:func:`geoscaler.optim.loop.optimize`).
-        phase: where the loop stands in a run of several (the layout race).
+        setup: how the loop trains (:class:`~geoscaler.optim.loop.LoopSetup`): UVs kept or
+            not, an extra loss term, an earlier loop's pool and start scores, its phase.
     """
     validation = context.validation
     if validation is None:
@@ -79,14 +70,10 @@ def fit(
         model,
         config,
         validation,
-        on_event=context.on_event,
-        controller=context.controller,
-        keeps_uvs=keeps_uvs,
-        perceptual=perceptual,
-        budget=Budget(context.clock, started, config.time_budget, context.reserve),
-        pool=pool,
-        start_scores=start_scores,
-        phase=phase,
+        setup,
+        Budget(context.clock, started, config.time_budget, context.reserve),
+        context.on_event,
+        context.controller,
     )
     textures = [None if t is None else linear_to_texture(t) for t in result.textures]
     uvs = None if result.uvs is None else result.uvs.detach().cpu().numpy().astype("float32")

@@ -46,6 +46,7 @@ from geoscaler.nn.network import (
     parameter_count,
 )
 from geoscaler.nn.perceptual import perceptual_loss
+from geoscaler.optim.loop import LoopSetup
 from geoscaler.optim.losses import PerceptualTerm
 from geoscaler.resize.filters import lanczos, reference_textures, target_size
 from geoscaler.resize.sizes import SizeRule
@@ -264,8 +265,7 @@ def geoscaler_network(
         loop,
         context,
         started,
-        keeps_uvs=not config.uv_warper,
-        perceptual=perceptual,
+        LoopSetup(keeps_uvs=not config.uv_warper, perceptual=perceptual),
     )
     if result.uvs is not None:
         facts.uv_shift_texels = uv_shift(mesh, result.uvs, result.textures)

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from geoscaler.clock import Budget, Clock, unlimited
+from geoscaler.clock import Budget, unlimited
 from geoscaler.color import texture_to_linear
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import TexturedMesh
@@ -34,7 +34,7 @@ from geoscaler.methods.registry import (
     TrialFacts,
     output_sizes_for,
 )
-from geoscaler.optim.loop import FINISH_MARGIN, OptimizeConfig, Phase
+from geoscaler.optim.loop import FINISH_MARGIN, PLAIN, LoopSetup, OptimizeConfig, Phase
 from geoscaler.optim.validation import MIN_FROZEN, Validation, sets_below, validation_view_sets
 from geoscaler.render.cameras import Camera, sample_training_cameras
 from geoscaler.render.renderer import Renderer
@@ -196,15 +196,16 @@ class Layout:
         context: RunContext,
         started: float,
         facts: LayoutFacts | None,
-        **handover: Any,
+        setup: LoopSetup = PLAIN,
     ) -> MethodResult:
-        """:func:`geoscaler.methods.learned.fit` in this layout (``handover``: its ``pool``
-        and ``start_scores``): the result carries the UVs and :class:`Atlas` of a new one."""
+        """:func:`geoscaler.methods.learned.fit` in this layout (``setup``: an earlier loop's
+        pool and start scores, the race's phase): the result carries the UVs and
+        :class:`Atlas` of a new one."""
         context = replace(context, validation=self.validation)
         if self.atlas is not None:
             on_event = _with_layout_uvs(context.on_event, self.renderer.uvs)
             context = replace(context, on_event=on_event)
-        result = fit(mesh, rule, self.renderer, model, config, context, started, **handover)
+        result = fit(mesh, rule, self.renderer, model, config, context, started, setup)
         result.layout_facts = facts
         if self.atlas is None:
             return result
@@ -245,8 +246,7 @@ def repacked_direct(
         validation = Validation(validation_view_sets(renderer), sizes, clock=context.clock)
     facts = LayoutFacts(uv=mode)
     end = _method_end(config, context, started)
-    atlases = _timely_layouts(mesh, rule, renderer, config, validation, started, end, facts,
-                              context.clock)  # fmt: skip
+    atlases = _timely_layouts(mesh, rule, renderer, config, validation, started, end, facts)
     own = Layout(renderer.relaid(mesh.uvs, memo), validation)
     new = {
         name: _new_layout(mesh, atlas, renderer, validation, sizes, memo)
@@ -365,7 +365,6 @@ def _timely_layouts(
     started: float,
     end: float | None,
     facts: LayoutFacts,
-    clock: Clock,
 ) -> list[Atlas]:
     """The new layouts (:data:`NEW_LAYOUTS`), planned and baked by :data:`PREPARING_SHARE` of
     the time from ``started`` to ``end`` (None: no budget): the planned one, and where that
@@ -375,6 +374,7 @@ def _timely_layouts(
     ``facts.skipped``). The first one's facts go in ``facts.planned``. Each bake
     is priced first (:func:`bake_seconds`), so each plan's deadline leaves the bakes their
     time."""
+    clock = validation.clock
     planned_by = baking = None
     if end is not None:
         if not validation.view_cost:
@@ -532,8 +532,8 @@ class _Phase:
                 config = replace(config, time_budget=loop_end + reserve - now)
         context = replace(self.context, reserve=reserve)
         phase = Phase(self.steps_before, self.config.steps, self.started, self.first, self.last)
-        return layout.fit(mesh, rule, model, config, context, start, facts, phase=phase,
-                          **handover)  # fmt: skip
+        setup = LoopSetup(phase=phase, **handover)
+        return layout.fit(mesh, rule, model, config, context, start, facts, setup)
 
 
 def _with_layout_uvs(on_event: Any, uvs: torch.Tensor) -> Any:

@@ -28,7 +28,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import torch
@@ -384,6 +384,37 @@ ALONE = Phase()
 """A loop that is a run of its own."""
 
 
+@dataclass(frozen=True)
+class LoopSetup:
+    """How a loop trains, besides the model and its settings.
+
+    Attributes:
+        keeps_uvs: the model never changes UVs, so texture taps can be cached and gutters
+            filled.
+        perceptual: an extra loss term (the network's VGG-19 term).
+        training_cameras: the views to train on (default: ``config.pool_views`` cameras drawn
+            from ``config.distances``). Methods never train on the validation cameras; the
+            texel-ceiling benchmark does, to bound what any texture could reach there.
+        pool: the training pool to train on and grow to its cameras (default: a new one over
+            the training cameras): an earlier loop's keeps its cached views and taps.
+        start_scores: the validation scores of the model's start, when an earlier loop on the
+            same validation validated it (it is not validated again).
+        phase: where the loop stands in a run of several (its events' and ``best_step``'s
+            count).
+    """
+
+    keeps_uvs: bool = True
+    perceptual: PerceptualTerm | None = None
+    training_cameras: Sequence[Camera] | None = None
+    pool: ViewCache | None = None
+    start_scores: Scores | None = None
+    phase: Phase = ALONE
+
+
+PLAIN = LoopSetup()
+"""A loop of its own on new training views, the mesh's UVs kept, no extra loss term."""
+
+
 @dataclass
 class LoopState:
     """What changes as the loop runs.
@@ -430,20 +461,20 @@ class TrainingLoop:
         config: OptimizeConfig,
         validation: Validation,
         budget: Budget,
-        pool: ViewCache,
+        setup: LoopSetup,
         on_event: Callable[[ProgressEvent], None] | None = None,
         controller: Controller | None = None,
-        keeps_uvs: bool = True,
-        perceptual: PerceptualTerm | None = None,
-        start_scores: Scores | None = None,
-        phase: Phase = ALONE,
     ):
+        """``setup.pool`` is the training pool (:func:`optimize` makes one where it has none)."""
+        pool = setup.pool
+        assert pool is not None, "the loop trains on a pool of views"
         self.renderer, self.model, self.config = renderer, model, config
-        self.phase = phase
+        self.phase = setup.phase
         self.validation, self.budget = validation, budget
         self.emit = on_event or (lambda event: None)
         self.controller = controller or Controller()
-        self.keeps_uvs, self.perceptual, self.start_scores = keeps_uvs, perceptual, start_scores
+        self.keeps_uvs, self.perceptual = setup.keeps_uvs, setup.perceptual
+        self.start_scores = setup.start_scores
         self.train = pool
         validating = [c for cache in validation.sets.values() for c in cache.views.cameras]
         self.farthest = max(camera.distance for camera in (*pool.views.cameras, *validating))
@@ -454,9 +485,9 @@ class TrainingLoop:
         self.generator = torch.Generator().manual_seed(config.seed)
         self.schedule = config.schedule
         self.loop_start = math.nan
-        plain_l2 = config.ssim_weight == 0 and perceptual is None and not config.loss_in_db
+        plain_l2 = config.ssim_weight == 0 and self.perceptual is None and not config.loss_in_db
         self.majorizes = (
-            isinstance(model, Sloped) and keeps_uvs and pool.with_taps and plain_l2
+            isinstance(model, Sloped) and self.keeps_uvs and pool.with_taps and plain_l2
         )
         self.caching = _Caching(pool, validation, config, budget, self._report)
         self.start_state: Candidate | None = None
@@ -652,15 +683,10 @@ def optimize(
     model: Model,
     config: OptimizeConfig,
     validation: Validation,
+    setup: LoopSetup = PLAIN,
+    budget: Budget | None = None,
     on_event: Callable[[ProgressEvent], None] | None = None,
     controller: Controller | None = None,
-    keeps_uvs: bool = True,
-    perceptual: PerceptualTerm | None = None,
-    training_cameras: Sequence[Camera] | None = None,
-    budget: Budget | None = None,
-    pool: ViewCache | None = None,
-    start_scores: Scores | None = None,
-    phase: Phase = ALONE,
 ) -> OptimizeResult:
     """Optimise ``model`` so that renders of its candidate match renders of the original.
 
@@ -671,23 +697,13 @@ def optimize(
         validation: the validation sets (their views may not be cached yet) with the taps of
             the candidate's texture sizes, which the training pool's taps take too, and the
             baselines whose floor the result must clear.
-        on_event: receives :class:`ProgressEvent` reports.
-        controller: lets another thread pause, resume or stop the loop.
-        keeps_uvs: the model never changes UVs, so texture taps can be cached and gutters
-            filled.
-        perceptual: an extra loss term (the network's VGG-19 term).
-        training_cameras: the views to train on (default: ``config.pool_views`` cameras drawn
-            from ``config.distances``). Methods never train on the validation cameras; the
-            texel-ceiling benchmark does, to bound what any texture could reach there.
+        setup: how the loop trains (:class:`LoopSetup`): UVs kept or not, an extra loss term,
+            the training views or an earlier loop's pool, the start's scores, its phase.
         budget: the time the loop may take, counted from its start (so that the job's and the
             method's set-up count too), less its reserve for what the caller does after the
-            loop returns (default: ``config.time_budget`` from now, on the wall clock).
-        pool: the training pool to train on and grow to its cameras (default: a new one over
-            ``training_cameras``): an earlier loop's keeps its cached views and taps.
-        start_scores: the validation scores of the model's start, when an earlier loop on the
-            same validation validated it (it is not validated again).
-        phase: where the loop stands in a run of several (its events' and ``best_step``'s
-            count).
+            loop returns (default: ``config.time_budget`` from now, on the validation's clock).
+        on_event: receives :class:`ProgressEvent` reports.
+        controller: lets another thread pause, resume or stop the loop.
 
     Returns:
         The best validated candidate (detached) by :meth:`Validation.rank`: the best on Q of
@@ -695,12 +711,12 @@ def optimize(
         run's history.
     """
     budget = budget or Budget.from_now(validation.clock, config.time_budget)
-    if pool is None:
-        cameras = training_cameras or sample_training_cameras(
+    if setup.pool is None:
+        cameras = setup.training_cameras or sample_training_cameras(
             config.pool_views, config.seed, config.distances
         )
         soft = config.soft if config.training_renderer == "soft" else None
-        pool = training_views(renderer, cameras, validation.sizes, keeps_uvs, soft)
-    loop = TrainingLoop(renderer, model, config, validation, budget, pool, on_event,
-                        controller, keeps_uvs, perceptual, start_scores, phase)  # fmt: skip
+        pool = training_views(renderer, cameras, validation.sizes, setup.keeps_uvs, soft)
+        setup = replace(setup, pool=pool)
+    loop = TrainingLoop(renderer, model, config, validation, budget, setup, on_event, controller)
     return loop.run()
