@@ -221,19 +221,7 @@ def downsample_details(done: Downsampled) -> dict[str, Any]:
 
 
 def _loop_details(loop: LoopFacts) -> dict[str, Any]:
-    return {
-        "steps": loop.steps,
-        "best_step": loop.best_step,
-        "validation_psnr_fg": loop.validation_psnr_fg,
-        "validation_scores": dict(loop.validation_scores),
-        "clears_floor": loop.clears_floor,
-        "baseline_scores": loop.baseline_scores,
-        "stopped_by": loop.stopped_by,
-        "first_step_seconds": loop.first_step_seconds,
-        "training_views": loop.training_views,
-        "validation_views": loop.validation_views,
-        "backtracks": loop.backtracks,
-    }
+    return {**asdict(loop), "validation_psnr_fg": loop.validation_psnr_fg}
 
 
 def _layout_details(facts: LayoutFacts) -> dict[str, Any]:
