@@ -356,6 +356,23 @@ def _check_texture_info(info: Any, path: Path, here: str, ref: _Refs) -> None:
         if key in info:
             high = 1 if key == "strength" else math.inf
             ref.numbers([info[key]], 1, f"{here}.{key}", 0 if high == 1 else -math.inf, high)
+    extensions = info.get("extensions")
+    if isinstance(extensions, dict) and "KHR_texture_transform" in extensions:
+        _check_transform(extensions["KHR_texture_transform"], path, here, ref)
+
+
+def _check_transform(transform: Any, path: Path, here: str, ref: _Refs) -> None:
+    """A ``KHR_texture_transform``: an object of finite numbers of the right count."""
+    where = f"{here}.extensions.KHR_texture_transform"
+    if not isinstance(transform, dict):
+        raise _refuse(path, where, "is not an object")
+    for key, count in (("offset", 2), ("scale", 2)):
+        if key in transform:
+            ref.numbers(transform[key], count, f"{where}.{key}")
+    if "rotation" in transform:
+        ref.numbers([transform["rotation"]], 1, f"{where}.rotation")
+    if "texCoord" in transform:
+        ref.whole(transform["texCoord"], f"{where}.texCoord")
 
 
 _ITEM_CHECKS: tuple[tuple[str, Callable[[dict, Path, str, _Refs], None]], ...] = (

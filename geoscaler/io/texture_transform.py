@@ -33,15 +33,16 @@ def transform_matrix(info: dict, where: str) -> np.ndarray | None:
     """The ``(3, 3)`` float64 affine map of a texture-info object's ``KHR_texture_transform``
     in GeoScaler's UV convention (``uv' = M @ (u, v, 1)``), None without one.
 
-    ``where`` starts the message of a refusal: values that are not finite numbers of the right
-    count, or a scale of zero (the texture would be sampled at one point).
+    The extension's numbers are checked when the file is read (:mod:`geoscaler.io.gltf_check`);
+    ``where`` starts the message of the one refusal left here: a scale of zero, which samples
+    the whole texture at one point.
     """
     extension = info.get("extensions", {}).get(EXTENSION)
     if extension is None:
         return None
-    offset = _numbers(extension, "offset", 2, [0.0, 0.0], where)
-    (rotation,) = _numbers(extension, "rotation", 1, [0.0], where)
-    scale = _numbers(extension, "scale", 2, [1.0, 1.0], where)
+    offset = [float(v) for v in extension.get("offset", [0.0, 0.0])]
+    rotation = float(extension.get("rotation", 0.0))
+    scale = [float(v) for v in extension.get("scale", [1.0, 1.0])]
     if 0.0 in scale:
         raise GeoscalerError(
             f"{where}: its {EXTENSION} has a scale of 0 {scale}, which samples the whole texture "
@@ -89,19 +90,3 @@ def unfolded(mesh: TexturedMesh) -> TexturedMesh:
         inverse = apply(np.linalg.inv(matrix), corners[faces].reshape(-1, 2))
         corners[faces] = inverse.reshape(-1, 3, 2)
     return mesh if corners is None else mesh.with_uvs(corners.astype(np.float32))
-
-
-def _numbers(
-    extension: dict, key: str, count: int, default: list[float], where: str
-) -> list[float]:
-    value = extension.get(key, default)
-    values = value if isinstance(value, list) else [value]
-    if len(values) != count or not all(
-        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-        for v in values
-    ):
-        raise GeoscalerError(
-            f"{where}: its {EXTENSION} {key} must be {count} finite number(s), not {value!r}. "
-            "Fix the material's texture transform in your 3D tool and re-export."
-        )
-    return [float(v) for v in values]

@@ -189,13 +189,10 @@ class _MethodRuns:
         indices = self.renderer.evaluation.view_indices
         self.comparison.view_indices = [indices[i] for i in spread_order(len(indices))]
         self.scores: dict[tuple[float, str, int | str], dict[str, Any]] = {}
-        self.progress = _Stages(self.observer, 0)
-
-    def count_stages(self, distances: Sequence[float]) -> None:
-        """The stages the observer is told of: each method at each scale, run and scored at
-        each distance, and each distance's views."""
-        steps = len(self.scales) * len(self.to_run) * (1 + len(distances))
-        self.progress = _Stages(self.observer, steps + len(distances))
+        # the stages the observer is told of: each method at each scale, run and scored at
+        # each distance, and each distance's views
+        steps = len(self.scales) * len(self.to_run) * (1 + len(self.distances))
+        self.progress = _Stages(self.observer, steps + len(self.distances))
 
     def run_scale(
         self, rule: SizeRule, scorings_after: int, budget: JobBudget | None
@@ -243,7 +240,7 @@ class _MethodRuns:
             result.first_step_after_start = round(first, 3)
         return no_worse_than_filters(name, result, validation, outputs)
 
-    def finish(self, distances: Sequence[float]) -> Comparison:
+    def finish(self) -> Comparison:
         """The rows with their gains over bicubic, ordered by distance, scale, then the
         listed methods; Q's foreground counts."""
         scores = self.scores
@@ -253,7 +250,7 @@ class _MethodRuns:
         comparison = self.comparison
         comparison.rows = [
             scores[distance, name, scale]
-            for distance in distances
+            for distance in self.distances
             for scale in self.scales
             for name in self.listed
         ]
@@ -309,11 +306,10 @@ def compare_mesh(
     runs = _MethodRuns(
         mesh, scales, methods, options, renderer, observer, controller, clock, distances
     )
-    runs.count_stages(runs.distances)
     for rule in runs.rules:
         runs.run_scale(rule, scorings_after=0, budget=None)
-    _score_protocol_sets(runs, runs.distances)
-    return runs.finish(runs.distances)
+    _score_protocol_sets(runs)
+    return runs.finish()
 
 
 def compare_on_validation(
@@ -336,7 +332,6 @@ def compare_on_validation(
     run, and its Lanczos start ships (:func:`learned_fits`).
     """
     runs = _MethodRuns(mesh, [scale], methods, options, renderer, observer, controller, clock)
-    runs.count_stages([VALIDATION_DISTANCE])
     (rule,) = runs.rules
     outputs, validation = runs.run_scale(rule, len(runs.to_run), budget)
     _cache_for_rows(validation, runs.options.time_budget, budget)
@@ -345,7 +340,7 @@ def compare_on_validation(
         row = validation_row(outputs[name], name, rule.label, validation)
         runs.scores[VALIDATION_DISTANCE, name, rule.label] = row
         runs.observer.scored(row)
-    return runs.finish([VALIDATION_DISTANCE])
+    return runs.finish()
 
 
 class _Stages:
@@ -416,11 +411,11 @@ def _cache_for_rows(
     validation.freeze(least)
 
 
-def _score_protocol_sets(runs: _MethodRuns, distances: Sequence[float]) -> None:
-    """Score every output on all views of the protocol's sets at ``distances`` (Q's views are
-    the validation's, completed here)."""
+def _score_protocol_sets(runs: _MethodRuns) -> None:
+    """Score every output on all views of the protocol's sets at the job's distances (Q's
+    views are the validation's, completed here)."""
     q, observer = runs.view_sets["Q"], runs.observer
-    for distance in distances:
+    for distance in runs.distances:
         runs.progress.step(f"rendering the views at {distance:g}")
         if distance == VALIDATION_DISTANCE:
             while q.cache_next():
