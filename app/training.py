@@ -270,7 +270,7 @@ class Training:
         views = range(min(SSIM_VIEWS, len(q)))
         mips = [None if t is None else MipTexture(quantize_linear(t)) for t in textures]
         images = q.render(mips, uvs, views=views)
-        scores = evaluate(images, q.references[: len(views)], q.foreground[: len(views)])
+        scores = evaluate(images, *q.stacked(len(views)))
         return float(scores["ssim_fg"].mean())
 
     def _on_event(self, event: ProgressEvent) -> None:

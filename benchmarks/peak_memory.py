@@ -4,9 +4,10 @@ Builds (in a temporary folder) a mesh whose base colour is ``--size`` x ``--size
 8192): the demo cube-sphere (:func:`geoscaler.procedural.demo_mesh`, every chart of its atlas
 seen from the views, frame-filling), or ``--mesh PATH``'s mesh, its base colour upscaled with
 Pillow's bicubic and saved as OBJ + JPEG (quick to encode). Then it runs ``geoscaler downsample
-MESH --scale 4 --steps S --time-budget B -o OUT.glb --report R.json`` in a new process per
-``--uv`` mode: loading, the filters, the reference renders, the loop's steps, the validation
-and the export all run.
+MESH --scale 4 --steps S --time-budget B --full-budget -o OUT.glb --report R.json`` in a new
+process per ``--uv`` mode: loading, the filters, the reference renders, the loop's steps, the
+validation and the export all run (``--full-budget``: an upscaled texture looks lossless at 4x,
+and the job would stop early, before the views that memory grows with are cached).
 
 The child's peak resident set size comes from the kernel (``os.wait4``'s ``ru_maxrss`` of that
 child alone), the wall time from here; ``--timeline`` also samples the child's RSS every 0.2 s
@@ -96,6 +97,7 @@ def run_downsample(
     command = [
         str(Path(sys.executable).with_name("geoscaler")), "downsample", str(mesh), "--scale", "4",
         "--steps", str(steps), "--time-budget", str(budget), "--uv", uv, "--device", "cpu",
+        "--full-budget",
         "-o", str(out), "--report", str(report), "--force",
     ]  # fmt: skip
     samples: list[tuple[float, int]] = []

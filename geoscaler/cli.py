@@ -373,6 +373,12 @@ def add_job_arguments(parser: argparse.ArgumentParser) -> None:
         "view caching, optimisation, scoring and export (default 60)",
     )
     parser.add_argument(
+        "--full-budget",
+        action="store_true",
+        help="optimise for the whole budget even where a filter already validates at 50 dB "
+        "PSNR-fg or more on every view (by default the method stops there)",
+    )
+    parser.add_argument(
         "--steps", type=int, help="maximum optimisation steps (default: the method's, 300)"
     )
     _add_device_argument(parser)

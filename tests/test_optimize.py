@@ -15,6 +15,7 @@ from geoscaler.methods.direct import TexelModel
 from geoscaler.optim.events import Controller
 from geoscaler.optim.loop import (
     FINISH_MARGIN,
+    NOTHING_TO_GAIN,
     LoopSetup,
     OptimizeConfig,
     _Best,
@@ -338,6 +339,61 @@ def test_views_are_cached_between_steps_by_count_not_by_time(scene):
     six = run(scene, uncached_validation(scene), steps=6)
     assert six.training_views == 8  # the validation views left are cached at the end:
     assert six.validation_views == {"Q": 6, "near": 2, "far": 2}
+
+
+def test_views_stop_being_cached_once_they_hold_the_view_memory(scene):
+    # A limit that the first views already exceed: the first step's 4 training views, then
+    # no more; the validation freezes at the least it validates on.
+    full = run(scene, uncached_validation(scene), steps=6, view_memory=1)
+    assert full.steps == 6 and full.training_views == 4
+    assert full.validation_views == {"Q": 3, "near": 2, "far": 2}
+    # Room for every view: the same as without a limit.
+    roomy = run(scene, uncached_validation(scene), steps=6, view_memory=1 << 40)
+    assert roomy.training_views == 8
+    assert roomy.validation_views == {"Q": 6, "near": 2, "far": 2}
+
+
+def test_cached_views_count_the_bytes_of_every_tensor_they_hold(scene):
+    _, renderer, views = scene
+    q = ViewSet(renderer, views["Q"].cameras[:2])
+    image = 64 * 64 * (3 * 4 + 1)  # a float32 sRGB reference and a bool mask
+    assert q.nbytes == 2 * image + sum(g.nbytes for g in q.gbuffers)
+    assert q.references.shape == (2, 64, 64, 3)  # stacked: a copy, not kept
+    assert q.nbytes == 2 * image + sum(g.nbytes for g in q.gbuffers)
+    cache = ViewCache(q, [(32, 32)], with_taps=True)
+    assert cache.nbytes == 0  # no taps found yet
+    cache.find_taps(0)
+    pixels = len(cache.object_pixels[0])
+    assert cache.nbytes == cache.taps[0][0].nbytes + pixels * (8 + 3 * 4 + 3 * 4)
+
+
+def test_a_loop_whose_baseline_is_already_invisible_stops_once_each_set_has_its_least_views(
+    scene,
+):
+    # The original itself as the baseline (full size): it renders as the reference does, on
+    # every view. Views are cached as in the test above: after step 5 Q has 3 views and the
+    # guards their 2 (all they have), and the loop stops there.
+    mesh, renderer, views = scene
+    original = reference_textures(mesh)[0]
+
+    def run_from_the_original(**overrides):
+        fresh = {name: ViewSet(renderer, v.cameras, eager=False) for name, v in views.items()}
+        validation = Validation(fresh, [original.shape[:2]], {"original": [original]})
+        model = TexelModel([texture_to_linear(original)])
+        return optimize(renderer, model, small_config(**overrides), validation)
+
+    stopped = run_from_the_original(finish_when_invisible=True)
+    assert stopped.stopped_by == NOTHING_TO_GAIN and stopped.steps == 5
+    assert run_from_the_original().steps == 30  # a loop that is not asked to stop: all its steps
+
+
+def test_a_loop_whose_baseline_is_visibly_off_makes_its_steps(scene):
+    mesh, _, _ = scene
+    validation = uncached_validation(scene)
+    validation.baselines = {"lanczos": [lanczos(reference_textures(mesh)[0], SCALE)]}
+    result = run(scene, validation, finish_when_invisible=True)
+    assert result.stopped_by == "steps" and result.steps == 30
+    assert max(validation.worst_baseline_views().values()) < 50.0
 
 
 def test_a_spent_budget_validates_on_what_is_cached_and_ships_the_start(scene):

@@ -286,6 +286,19 @@ def test_a_tap_matrix_sums_each_rows_weighted_texels_given_in_any_order():
     assert taps.nbytes == 5 * 4 + 6 * 4 + 6 * 4  # CSR, int32 indices (no transpose yet)
 
 
+def test_merged_taps_sum_each_rows_taps_of_one_texel():
+    # Row 0 reads texel 3 twice and texel 1 once, row 1 nothing, row 2 texel 2 twice.
+    counts = torch.tensor([3, 0, 2])
+    texel = torch.tensor([3, 1, 3, 2, 2], dtype=torch.int32)
+    weight = torch.tensor([0.5, 0.25, 0.25, 1.0, 0.5])
+    merged = TapMatrix.merged(counts, texel, weight, (3, 4))
+    assert merged.texel.tolist() == [1, 3, 2]  # ascending within each row
+    assert merged.weight.tolist() == [0.25, 0.75, 1.5]
+    assert merged.matrix.crow_indices().tolist() == [0, 2, 2, 3]
+    table = torch.tensor([[1.0, 10.0], [2.0, 20.0], [4.0, 40.0], [8.0, 80.0]])
+    assert torch.equal(merged(table), TapMatrix.by_rows(counts, texel, weight, (3, 4))(table))
+
+
 def test_a_tap_matrix_is_differentiable_in_its_table():
     generator = torch.Generator().manual_seed(0)
     row = torch.randint(0, 5, (40,), generator=generator, dtype=torch.int32)
@@ -294,8 +307,26 @@ def test_a_tap_matrix_is_differentiable_in_its_table():
     taps = TapMatrix(row, texel, weight, (5, 7))
     table = torch.rand(7, 3, generator=generator, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(taps, (table,))
-    # the matrix and, since the backward pass, its transpose (7 + 1 row offsets)
-    assert taps.nbytes == (6 * 4 + 40 * (4 + 8)) + (8 * 4 + 40 * (4 + 8))
+    # the matrix and, since the backward pass, its transpose over the texels read
+    read = len(set(texel.tolist()))
+    assert taps.nbytes == (6 * 4 + 40 * (4 + 8)) + (read * 4 + (read + 1) * 4 + 40 * (4 + 8))
+
+
+def test_a_tap_matrix_gradient_reaches_the_texels_read_and_its_memory_not_the_table_size():
+    # 3 rows reading 3 texels of a million-texel table: the gradient is every tap's weight
+    # times its row's gradient, at its texel, zero elsewhere; the transpose holds offsets for
+    # the 2 texels read, not for the million.
+    row = torch.tensor([0, 1, 1, 2], dtype=torch.int32)
+    texel = torch.tensor([999_999, 5, 999_999, 5], dtype=torch.int32)
+    weight = torch.tensor([0.5, 0.25, 0.75, 1.0])
+    taps = TapMatrix(row, texel, weight, (3, 1_000_000))
+    table = torch.zeros(1_000_000, 2, requires_grad=True)
+    taps(table).backward(torch.tensor([[1.0, 2.0], [4.0, 8.0], [16.0, 32.0]]))
+    expected = torch.zeros(1_000_000, 2)
+    expected[5] = torch.tensor([0.25 * 4 + 1.0 * 16, 0.25 * 8 + 1.0 * 32])
+    expected[999_999] = torch.tensor([0.5 * 1 + 0.75 * 4, 0.5 * 2 + 0.75 * 8])
+    assert torch.equal(table.grad, expected)
+    assert taps.nbytes == (4 * 4 + 4 * 8) + (2 * 4 + 3 * 4 + 4 * 8)
 
 
 def test_srgb_conversions_are_differentiable():

@@ -91,7 +91,8 @@ class LoopFacts:
         validation_scores: set name -> mean PSNR-fg (dB) of the kept candidate.
         clears_floor: the kept candidate is no worse than the best filter on every set.
         baseline_scores: filter name -> its scores per set.
-        stopped_by: ``"steps"``, ``"time budget"``, ``"stopped"`` or ``"plateau"``.
+        stopped_by: ``"steps"``, ``"time budget"``, ``"stopped"``, ``"plateau"`` or
+            ``"nothing visible to gain"`` (:data:`~geoscaler.optim.loop.NOTHING_TO_GAIN`).
         first_step_seconds: seconds from the method's start to its first step's end (3
             decimals; nan: no step).
         training_views: training views cached; ``validation_views``: set name -> views

@@ -34,7 +34,14 @@ from geoscaler.methods.registry import (
     TrialFacts,
     output_sizes_for,
 )
-from geoscaler.optim.loop import FINISH_MARGIN, PLAIN, LoopSetup, OptimizeConfig, Phase
+from geoscaler.optim.loop import (
+    FINISH_MARGIN,
+    NOTHING_TO_GAIN,
+    PLAIN,
+    LoopSetup,
+    OptimizeConfig,
+    Phase,
+)
 from geoscaler.optim.validation import MIN_FROZEN, Validation, sets_below, validation_view_sets
 from geoscaler.render.cameras import Camera, sample_training_cameras
 from geoscaler.render.renderer import Renderer
@@ -299,7 +306,8 @@ def raced(
     The winner makes the steps asked, its trial's counted; the losers' trial steps come on top
     (the result's ``steps`` and ``best_step`` count from the race's first step). One layout,
     or fewer steps than layouts (no room for a trial in each): the first goes on alone (the
-    mesh's own for ``auto``).
+    mesh's own for ``auto``). A trial that stops with nothing visible left to gain
+    (:data:`~geoscaler.optim.loop.NOTHING_TO_GAIN`) ends the race with what it ships.
     """
     if len(layouts) == 1 or config.steps < len(layouts):
         name, layout = next(iter(layouts.items()))
@@ -313,7 +321,7 @@ def raced(
     race = _Trials(config, context, started, end, cameras)
     for name, layout in layouts.items():
         race.run(mesh, rule, name, layout, start_model(mesh, rule, layout.renderer, layout.starts))
-        if _stopped(context):
+        if _stopped(context) or race.nothing_to_gain:
             break
     winner = _winner(race.results, layouts, facts)
     first_step = next(iter(race.results.values())).loop.first_step_seconds
@@ -322,7 +330,7 @@ def raced(
     steps_left = config.steps - best.loop.steps
     finishing = FINISH_MARGIN * layout.validation.seconds_needed(2, False)
     no_time = end is not None and context.clock.now() + finishing >= end
-    if _stopped(context) or steps_left < 1 or no_time:
+    if _stopped(context) or steps_left < 1 or no_time or race.nothing_to_gain:
         best.loop = replace(best.loop, steps=race.steps, first_step_seconds=first_step)
         best.layout_facts = facts
         return best
@@ -451,6 +459,12 @@ class _Trials:
         self.steps += result.loop.steps
         if first:
             self.steps_each = max(result.loop.steps, 1)
+
+    @property
+    def nothing_to_gain(self) -> bool:
+        """A trial stopped because a filter already validates beyond what is visible: the race
+        ends there, with what that trial ships."""
+        return any(r.loop.stopped_by == NOTHING_TO_GAIN for r in self.results.values())
 
 
 def _winner(

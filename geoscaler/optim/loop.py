@@ -65,6 +65,18 @@ little and can overrun it (``benchmarks/budget.py``; see docs/decisions/finish-m
 CACHING_SHARE = 0.4
 """Under a time budget, views are cached within this share of it: then the training pool stops
 growing and the validation sets freeze at what is cached."""
+INVISIBLE_PSNR_FG = 50.0
+"""PSNR-fg (dB) at and above which a render differs from its reference by less than a step of
+8 bits can show: an RMS error of 0.81 of a code (rounding to 8 bits alone is 0.29, 58.9 dB). A
+loop whose baselines validate at least this on every view of every set has nothing visible left
+to gain and stops (``finish_when_invisible``; see docs/decisions/invisible-differences.md)."""
+NOTHING_TO_GAIN = "nothing visible to gain"
+"""``stopped_by`` of a loop that stopped at :data:`INVISIBLE_PSNR_FG`."""
+VIEW_MEMORY = 2 << 30
+"""Bytes the views a loop caches may hold, training pool and validation sets together (G-buffers,
+references, taps and their transposes): past them the pool stops growing and the validation
+freezes, as at the end of the caching window, so that a job's memory is bounded whatever its
+budget (a view of a large texture holds tens of MB; see docs/refusals.md, memory)."""
 CACHED_PER_STEP = 2
 """Views cached after each step while some are missing: a count, not a time share, so that a
 run without a budget is the same on every machine."""
@@ -127,6 +139,11 @@ class OptimizeConfig:
         training_renderer: what renders the training views, candidate and original alike:
             ``"exact"`` (the protocol renderer) or ``"soft"`` (the paper's soft rasteriser,
             :mod:`geoscaler.render.soft`, with ``soft`` settings). Validation is always exact.
+        view_memory: bytes the cached views may hold (:data:`VIEW_MEMORY`; None: no limit).
+        finish_when_invisible: stop (``stopped_by`` :data:`NOTHING_TO_GAIN`) as soon as every
+            validation set has its least views cached, where a baseline validates at
+            :data:`INVISIBLE_PSNR_FG` or more on every one of them (``downsample`` and
+            ``batch`` unless ``--full-budget``; ``compare`` and ``bench`` measure whole runs).
     """
 
     steps: int = 400
@@ -147,6 +164,8 @@ class OptimizeConfig:
     seed: int = 0
     training_renderer: str = "exact"
     soft: SoftSettings = field(default_factory=SoftSettings)
+    view_memory: int | None = VIEW_MEMORY
+    finish_when_invisible: bool = False
 
     def __post_init__(self) -> None:
         if self.training_renderer not in ("exact", "soft"):
@@ -170,7 +189,8 @@ class OptimizeResult:
         clears_floor: the candidate is no worse than the best baseline on every set.
         shortfall: dB (<= 0) it falls below the best baseline on its worst set.
         baselines: baseline name -> its validation PSNR-fg per set.
-        stopped_by: ``"steps"``, ``"time budget"``, ``"plateau"`` or ``"stopped"``.
+        stopped_by: ``"steps"``, ``"time budget"``, ``"plateau"``, ``"stopped"`` or
+            :data:`NOTHING_TO_GAIN`.
         seconds: wall time from the start the budget counts from.
         first_step_seconds: seconds from that start to the end of the first step (nan: none).
         training_views: training views cached; ``validation_views`` set name -> views
@@ -280,8 +300,8 @@ class _Caching:
     After each step :meth:`after_step` caches :data:`CACHED_PER_STEP` more, training and
     validation views in turn (whichever has fewer) until one is complete, then the other; the
     validation freezes once complete. Under a budget, once
-    :data:`CACHING_SHARE` of it is spent, the pool stops growing and the validation freezes at
-    what is cached.
+    :data:`CACHING_SHARE` of it is spent, or once the cached views hold ``config.view_memory``
+    bytes, the pool stops growing and the validation freezes at what is cached.
     """
 
     def __init__(
@@ -332,24 +352,37 @@ class _Caching:
         return True
 
     def after_step(self) -> None:
-        """Cache :data:`CACHED_PER_STEP` views; past the caching window, :meth:`close`."""
-        if self.window.left() < 0:
+        """Cache :data:`CACHED_PER_STEP` views; past the caching window or the view memory,
+        :meth:`close`."""
+        if self.window.left() < 0 or self.memory_full():
             self.close()
             return
         for _ in range(CACHED_PER_STEP):
-            if not self._cache_one():
+            if self.memory_full() or not self._cache_one():
                 break
         if self.validation.complete:
             self.validation.freeze()
 
     def close(self) -> None:
         """No more training views; cache the validation views left within the caching window
-        (all of them, without a budget), and validate on those from now on."""
+        and the view memory (all of them, without a budget or a limit), and validate on those
+        from now on."""
         self.pool.cameras = self.pool.cameras[: len(self.pool)]
-        while self.window.left() > 0:
+        while self.window.left() > 0 and not self.memory_full():
             if not self.validation.cache_next():
                 break
         self.validation.freeze()
+
+    def memory_full(self) -> bool:
+        """The cached views hold ``config.view_memory`` bytes or more."""
+        limit = self.config.view_memory
+        return limit is not None and self.view_bytes() >= limit
+
+    def view_bytes(self) -> int:
+        """Bytes the training pool and the validation sets hold (:attr:`ViewSet.nbytes` and
+        :attr:`ViewCache.nbytes`)."""
+        caches = [self.train, *self.validation.sets.values()]
+        return sum(cache.nbytes + cache.views.nbytes for cache in caches)
 
     @property
     def views_done(self) -> tuple[int, int]:
@@ -423,7 +456,7 @@ class LoopState:
         step: steps taken.
         loss: the last step's loss (nan before the first).
         stopped_by: why the loop ended (``"steps"``, ``"time budget"``, ``"stopped"``,
-            ``"plateau"``).
+            ``"plateau"``, :data:`NOTHING_TO_GAIN`).
         step_seconds: the last step's wall-clock seconds (0 before one is timed: a step from
             cached views costs a fraction of caching them).
         first_step_seconds: seconds from the budget's start to the end of the first step.
@@ -431,6 +464,7 @@ class LoopState:
         backtracks: times the loop went back to its best candidate.
         check_at: the step a backtrack asks to validate at (-1: none).
         validated_step: the last step validated (-1: none).
+        looked_for_gain: whether the baselines were looked at for anything visible left to gain.
         history: one row per step.
     """
 
@@ -443,6 +477,7 @@ class LoopState:
     backtracks: int = 0
     check_at: int = -1
     validated_step: int = -1
+    looked_for_gain: bool = False
     history: list[dict] = field(default_factory=list)
 
 
@@ -505,9 +540,24 @@ class TrainingLoop:
                 break
             self._step()
             self.caching.after_step()
+            if self._nothing_to_gain():
+                self.state.stopped_by = NOTHING_TO_GAIN
+                break
             if self.validation.frozen and self._validate_when_due():
                 break
         return self._finish()
+
+    def _nothing_to_gain(self) -> bool:
+        """Whether a baseline already validates at :data:`INVISIBLE_PSNR_FG` or more on every
+        view of every set; looked at once, as soon as each set has its least views
+        (``config.finish_when_invisible``)."""
+        if self.state.looked_for_gain or not self.config.finish_when_invisible:
+            return False
+        worst = self.validation.worst_baseline_views()
+        if not worst:
+            return False
+        self.state.looked_for_gain = True
+        return max(worst.values()) >= INVISIBLE_PSNR_FG
 
     # --------------------------------------------------------------------------- the budget
 
@@ -650,6 +700,8 @@ class TrainingLoop:
         """Validate what is still owed (the start; a last step between validations, which may
         be better) and report."""
         state = self.state
+        if state.stopped_by == NOTHING_TO_GAIN:
+            self.caching.validation.freeze()  # the views that showed it: no more to cache
         self.caching.close()
         if not self.best.has_start:
             self._validate_start()

@@ -376,6 +376,24 @@ class Validation:
             }
         return self._baseline_scores
 
+    def worst_baseline_views(self, least: Mapping[str, int] = MIN_FROZEN) -> dict[str, float]:
+        """Baseline name -> its lowest PSNR-fg (dB) over the views cached (once frozen: validated
+        on) in every set, views with nothing in view aside; empty until each set has its
+        ``least`` views (fewer where it has fewer) or without baselines."""
+        if not self.frozen and self.views.to_cache(least):
+            return {}
+        worst = {}
+        for name, textures in self.baselines.items():
+            colours = [None if t is None else to_rgb(t) for t in textures]
+            lowest = math.inf
+            for set_name, cache in self.sets.items():
+                count = self.counts[set_name] if self.frozen else len(cache)
+                values = cache.score(colours, None, count)["psnr_fg"]
+                values = values[~torch.isnan(values)]
+                lowest = min([lowest, *values.tolist()])
+            worst[name] = lowest
+        return worst
+
     def _floor(self) -> Floor:
         """The :class:`Floor` of the baselines on the sets."""
         return Floor(self.baseline_scores(), list(self.sets))

@@ -191,7 +191,9 @@ def network_settings(preset: str | None = None, vgg19: str | Path | None = None)
 def method_settings(args: Any) -> dict:
     """The methods' own settings from parsed arguments: the network's ``--preset`` and
     ``--vgg19``, ``--renderer`` (what learned methods train through), ``direct``'s ``--uv``
-    (keep, repack or auto), plus ``args.optimize``,
+    (keep, repack or auto), a downsampling job's stop where nothing visible is left to gain
+    (unless ``--full-budget``; ``compare`` and ``bench`` measure whole budgets), plus
+    ``args.optimize``,
     loop overrides that a caller of :func:`geoscaler.cli.main` injected (None from the
     command line)."""
     settings = network_settings(args.preset, args.vgg19)
@@ -200,6 +202,8 @@ def method_settings(args: Any) -> dict:
     loop = dict(args.optimize or {})
     if getattr(args, "renderer", "exact") != "exact":
         loop["training_renderer"] = args.renderer
+    if getattr(args, "full_budget", True) is False:  # a downsampling job's default
+        loop["finish_when_invisible"] = True
     if loop:
         settings["optimize"] = loop
     return settings

@@ -1,8 +1,9 @@
-"""Which torch device a run uses (CUDA when torch sees a GPU, unless told otherwise), and a
-mesh's arrays on it as every renderer starts from them."""
+"""Which torch device a run uses (CUDA when torch sees a GPU, unless told otherwise), a mesh's
+arrays on it as every renderer starts from them, and what tensors hold there."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
@@ -45,3 +46,8 @@ def mesh_tensors(mesh: TexturedMesh, device: torch.device) -> MeshTensors:
         factors,
     )
     return MeshTensors(*(torch.from_numpy(a).to(device) for a in arrays))
+
+
+def tensor_bytes(tensors: Iterable[torch.Tensor]) -> int:
+    """Bytes of the elements of ``tensors`` (views of one storage counted each)."""
+    return sum(t.element_size() * t.nelement() for t in tensors)

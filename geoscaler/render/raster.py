@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import torch
 
+from geoscaler.render.devices import tensor_bytes
+
 _DEPTH_LEVELS = 2**31 - 1
 _TRIANGLE_BITS = 31
 _EMPTY = torch.iinfo(torch.int64).max
@@ -52,7 +54,7 @@ class GBuffer:
     @property
     def nbytes(self) -> int:
         """Bytes held by the cached tensors."""
-        return sum(t.element_size() * t.nelement() for t in self._tensors())
+        return tensor_bytes(self._tensors())
 
     def _tensors(self) -> tuple[torch.Tensor, ...]:
         return self.pixels, self.tri_ids, self.tri_matrices

@@ -55,7 +55,7 @@ from geoscaler.color import linear_to_srgb, texture_to_linear
 from geoscaler.mesh import TexturedMesh
 from geoscaler.protocol import PROTOCOL_EVALUATION, Evaluation
 from geoscaler.render.cameras import Camera
-from geoscaler.render.devices import mesh_tensors, resolve_device
+from geoscaler.render.devices import mesh_tensors, resolve_device, tensor_bytes
 from geoscaler.render.texture import MipLayout, MipTexture, gather
 from geoscaler.resize.filters import reference_textures
 
@@ -148,7 +148,7 @@ class SoftFragments:
     @property
     def nbytes(self) -> int:
         """Bytes held by the tensors."""
-        return sum(t.element_size() * t.nelement() for t in self._tensors())
+        return tensor_bytes(self._tensors())
 
     def _tensors(self) -> tuple[torch.Tensor, ...]:
         return self.sample, self.face, self.weight, self.bary, self.covered, self.alpha

@@ -18,6 +18,8 @@ from typing import NamedTuple
 import torch
 import torch.nn.functional as F
 
+from geoscaler.render.devices import tensor_bytes
+
 
 def mip_sizes(height: int, width: int) -> list[tuple[int, int]]:
     """Level sizes of the mip chain: halve (rounding down, at least 1) until 1 x 1."""
@@ -273,6 +275,22 @@ class TapMatrix:
         taps.matrix = _csr_by_rows(counts, texel, weight, shape)
         return taps
 
+    @classmethod
+    def merged(
+        cls, counts: torch.Tensor, texel: torch.Tensor, weight: torch.Tensor, shape: tuple[int, int]
+    ) -> TapMatrix:
+        """:meth:`by_rows` with each row's taps of one texel summed into one tap, the row's
+        texels ascending: the samples of a pixel read many of the same texels (of its coarser
+        mip level above all), so the matrix holds fewer taps and a product with it costs
+        less. Equal to the unmerged matrix up to float rounding."""
+        rows = torch.arange(len(counts), device=texel.device)
+        key = torch.repeat_interleave(rows, counts) * shape[1] + texel.long()
+        unique, inverse = torch.unique(key, sorted=True, return_inverse=True)
+        summed = weight.new_zeros(len(unique)).index_add_(0, inverse, weight)
+        row = unique // shape[1]
+        merged_counts = torch.bincount(row, minlength=shape[0])
+        return cls.by_rows(merged_counts, (unique - row * shape[1]).int(), summed, shape)
+
     @property
     def texel(self) -> torch.Tensor:
         """``(M,)`` int32 texel of every tap, by row."""
@@ -284,24 +302,28 @@ class TapMatrix:
         return self.matrix.values()
 
     @cached_property
-    def transposed(self) -> torch.Tensor:
-        """The ``(T, R)`` transpose, CSR: what the gradient is a product with."""
+    def transposed(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(texels, matrix)``: the ``(U,)`` int32 texels the taps read, ascending, and the
+        ``(U, R)`` CSR transpose over them alone (row ``u`` holds texel ``texels[u]``'s taps, in
+        row order): what the gradient is a product with. Over the texels read, not the whole
+        chain, so that its row offsets do not grow with the texture (over a 2048 x 2048
+        candidate's chain they are 22 MB a view)."""
         crow = self.matrix.crow_indices()
         rows = torch.arange(self.shape[0], dtype=torch.int32, device=crow.device)
         row = torch.repeat_interleave(rows, crow.diff())
-        return _csr(self.texel, row, self.weight, (self.shape[1], self.shape[0]))
+        order = torch.argsort(self.texel, stable=True)
+        texels, counts = torch.unique_consecutive(self.texel[order], return_counts=True)
+        shape = (len(texels), self.shape[0])
+        return texels, _csr_by_rows(counts, row[order], self.weight[order], shape)
 
     @property
     def nbytes(self) -> int:
         """Bytes the matrix (and its transpose, once made) hold."""
-        matrices = [self.matrix, self.__dict__.get("transposed")]
-        parts = [
-            part
-            for m in matrices
-            if m is not None
-            for part in (m.crow_indices(), m.col_indices(), m.values())
-        ]
-        return sum(part.element_size() * part.nelement() for part in parts)
+        parts = [self.matrix.crow_indices(), self.matrix.col_indices(), self.matrix.values()]
+        if "transposed" in self.__dict__:
+            texels, matrix = self.transposed
+            parts += [texels, matrix.crow_indices(), matrix.col_indices(), matrix.values()]
+        return tensor_bytes(parts)
 
     def __call__(self, table: torch.Tensor) -> torch.Tensor:
         """``(R, C)`` outputs of a ``(T, C)`` texel table (differentiable in ``table``)."""
@@ -337,7 +359,8 @@ def _csr_by_rows(
 
 
 class _TapProduct(torch.autograd.Function):
-    """``taps.matrix @ table``, whose backward is ``taps.transposed @ grad``."""
+    """``taps.matrix @ table``, whose backward is the transpose's product with ``grad``,
+    written into the rows of the texels the taps read."""
 
     @staticmethod
     def forward(ctx, taps: TapMatrix, table: torch.Tensor) -> torch.Tensor:
@@ -346,7 +369,9 @@ class _TapProduct(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad: torch.Tensor) -> tuple[None, torch.Tensor]:
-        return None, ctx.taps.transposed @ grad.contiguous()
+        texels, transposed = ctx.taps.transposed
+        grad_table = grad.new_zeros(ctx.taps.shape[1], grad.shape[1])
+        return None, grad_table.index_add_(0, texels, transposed @ grad.contiguous())
 
 
 class MipTexture:

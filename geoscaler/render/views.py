@@ -21,6 +21,7 @@ import torch
 
 from geoscaler.color import linear_to_srgb, texture_to_linear
 from geoscaler.render.cameras import Camera, view_set_cameras
+from geoscaler.render.devices import tensor_bytes
 from geoscaler.render.metrics import evaluate
 from geoscaler.render.raster import GBuffer
 from geoscaler.render.renderer import Renderer
@@ -62,7 +63,6 @@ class ViewSet:
         self.gbuffers: list[GBuffer] = []
         self._references: list[torch.Tensor] = []
         self._foreground: list[torch.Tensor] = []
-        self._stacked: tuple[torch.Tensor, torch.Tensor] | None = None
         if eager:
             while self.cache_next():
                 if progress:
@@ -91,23 +91,31 @@ class ViewSet:
         self._references.append(reference)
         self._foreground.append(foreground)
         self.gbuffers.append(gbuffer)
-        self._stacked = None
         return True
 
     @property
     def references(self) -> torch.Tensor:
-        """``(N, H, W, 3)`` float32 sRGB renders of the cached views with the reference maps."""
-        return self._stack()[0]
+        """``(N, H, W, 3)`` float32 sRGB renders of the cached views with the reference maps
+        (stacked anew at each call: :meth:`stacked` takes the first few)."""
+        return self.stacked()[0]
 
     @property
     def foreground(self) -> torch.Tensor:
-        """``(N, H, W)`` bool pixels the mesh covers in each cached view."""
-        return self._stack()[1]
+        """``(N, H, W)`` bool pixels the mesh covers in each cached view (stacked anew)."""
+        return self.stacked()[1]
 
-    def _stack(self) -> tuple[torch.Tensor, torch.Tensor]:
-        if self._stacked is None:
-            self._stacked = torch.stack(self._references), torch.stack(self._foreground)
-        return self._stacked
+    def stacked(self, count: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """``((count, H, W, 3) references, (count, H, W) foreground)`` of the first ``count``
+        cached views (all by default), stacked: a copy, not kept, so that a set holds each
+        reference once."""
+        count = len(self) if count is None else count
+        return torch.stack(self._references[:count]), torch.stack(self._foreground[:count])
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes the cached views hold: G-buffers (or soft fragments), references, masks."""
+        images = tensor_bytes(self._references + self._foreground)
+        return images + sum(gbuffer.nbytes for gbuffer in self.gbuffers)
 
     def reference(self, view: int) -> tuple[torch.Tensor, torch.Tensor]:
         """``((H, W, 3) reference, (H, W) foreground)`` of one cached view, without stacking."""
@@ -138,7 +146,7 @@ class ViewSet:
             uv_tensor = torch.as_tensor(uvs, dtype=torch.float32, device=self.renderer.device)
         with torch.no_grad():
             images = self.render(mips, uv_tensor, range(count))
-            return evaluate(images, self.references[:count], self.foreground[:count])
+            return evaluate(images, *self.stacked(count))
 
 
 class ViewCache:
@@ -180,6 +188,15 @@ class ViewCache:
     def __len__(self) -> int:
         return len(self.views)
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes this cache holds beside its view set's: the taps (their transposes once a
+        backward pass made them) and each view's object pixels, references and untextured
+        colours."""
+        taps = sum(t.nbytes for view in self.taps for t in view if t is not None)
+        per_view = self.untextured + self.object_pixels + self._object_references
+        return taps + tensor_bytes(per_view)
+
     @torch.no_grad()
     def find_taps(self, view: int) -> None:
         """Find the taps of every cached view up to ``view`` (nothing without taps)."""
@@ -204,7 +221,8 @@ class ViewCache:
         each pixel's row of the ``rows`` rows): with fixed UVs a rendered pixel (before sRGB
         encoding) is a fixed weighted sum of texels of the candidate's mip chain, its samples'
         trilinear taps each weighted 1 / samples per pixel (a magnified sample taps its finer
-        level alone); None: untextured or unseen."""
+        level alone), a pixel's taps of one texel merged into one (:meth:`TapMatrix.merged`:
+        often half of them or more, where samples share texels); None: untextured or unseen."""
         if isinstance(gbuffer, SoftFragments):
             found = self.renderer.pixel_taps(gbuffer, self.layouts)
             return [
@@ -234,7 +252,7 @@ class ViewCache:
             per_row = torch.zeros(rows, dtype=torch.int64, device=row.device)
             per_row.index_add_(0, row, count.long())
             shape = (rows, layout.num_texels)
-            taps.append(TapMatrix.by_rows(per_row, texel, weight * share, shape))
+            taps.append(TapMatrix.merged(per_row, texel, weight * share, shape))
         return taps
 
     def _untextured(self, gbuffer: GBuffer | SoftFragments) -> torch.Tensor:
@@ -322,7 +340,7 @@ class ViewCache:
             mips = mip_chains(linear)
             images = torch.stack([self.render(i, mips, None) for i in range(count)])
             views = self.views
-            return evaluate(images, views.references[:count], views.foreground[:count])
+            return evaluate(images, *views.stacked(count))
 
 
 def mip_chains(textures: Sequence[torch.Tensor | MipTexture | None]) -> list[MipTexture | None]:

@@ -18,6 +18,7 @@ import torch
 
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods import LayoutFacts, LoopFacts, MethodResult, Shipping
+from geoscaler.optim.loop import INVISIBLE_PSNR_FG, NOTHING_TO_GAIN
 from geoscaler.pipeline.downsampling import Job
 from geoscaler.pipeline.job import Comparison, Downsampled
 from geoscaler.pipeline.rows import texture_facts
@@ -330,7 +331,12 @@ def _validation_lines(method: str, details: dict[str, Any]) -> list[str]:
             f"shipped {shipped}: {method}'s own result fell {-details['shortfall_db']:.2f} dB "
             f"short of clearing the best filter on its worst validation set (its mean gain "
             f"view by view, less a standard error or more, by the views' count) and {shipped} "
-            f"fell less, so the output is {shipped}'s texture; give the method more steps or time"
+            f"fell less, so the output is {shipped}'s texture"
+            + (
+                ""
+                if details.get("stopped_by") == NOTHING_TO_GAIN
+                else "; give the method more steps or time"
+            )
         )
     return lines
 
@@ -358,6 +364,12 @@ def format_report(document: dict[str, Any]) -> str:
             lines.append(
                 f"{details['backtracks']} validation(s) ranked the candidate below the best so "
                 "far: each sent the texels back to the best and lowered the learning rate"
+            )
+        if details.get("stopped_by") == NOTHING_TO_GAIN:
+            lines.append(
+                f"note: a filter already validates at {INVISIBLE_PSNR_FG:g} dB PSNR-fg or more "
+                "on every validation view (differences smaller than one 8-bit step), so the "
+                "method stopped there; --full-budget spends the whole budget anyway"
             )
         if details["steps"] == 0 and details.get("stopped_by") == "time budget":
             lines.append(
