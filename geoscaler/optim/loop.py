@@ -701,7 +701,7 @@ class TrainingLoop:
         be better) and report."""
         state = self.state
         if state.stopped_by == NOTHING_TO_GAIN:
-            self.caching.validation.freeze()  # the views that showed it: no more to cache
+            self.validation.freeze()  # the views that showed it: no more to cache
         self.caching.close()
         if not self.best.has_start:
             self._validate_start()

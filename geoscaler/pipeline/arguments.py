@@ -202,7 +202,7 @@ def method_settings(args: Any) -> dict:
     loop = dict(args.optimize or {})
     if getattr(args, "renderer", "exact") != "exact":
         loop["training_renderer"] = args.renderer
-    if getattr(args, "full_budget", True) is False:  # a downsampling job's default
+    if not getattr(args, "full_budget", True):  # downsample and batch: on unless asked off
         loop["finish_when_invisible"] = True
     if loop:
         settings["optimize"] = loop
