@@ -32,6 +32,12 @@ def test_the_slopes_are_the_derivatives_of_the_srgb_curves():
     assert linear_to_srgb_slope(torch.tensor([-0.1, 1.2])).tolist() == [0.0, 0.0]
 
 
+def test_the_srgb_decoding_differentiates_as_its_formula_by_finite_differences():
+    # the decoding's backward pass is the slope itself: checked here against the formula
+    inputs = torch.tensor([0.001, 0.02, 0.04, 0.05, 0.3, 0.7, 0.999], dtype=torch.float64)
+    assert torch.autograd.gradcheck(srgb_to_linear, inputs.requires_grad_(True))
+
+
 @pytest.fixture(scope="module")
 def small_views():
     """Three cached 16-pixel views of a two-textured, one-untextured mesh, with the taps of

@@ -8,13 +8,16 @@ import pytest
 import torch
 from mesh_support import three_material_demo
 
+import geoscaler.optim.loop as loop_module
 from geoscaler.clock import WALL_CLOCK, Budget, Clock, ManualClock
 from geoscaler.color import linear_to_srgb, linear_to_texture, texture_to_linear
 from geoscaler.methods import MethodOptions, RunContext, run_method
 from geoscaler.methods.direct import TexelModel
+from geoscaler.methods.learned import loop_config
 from geoscaler.optim.events import Controller
 from geoscaler.optim.loop import (
     FINISH_MARGIN,
+    METHOD_MEMORY,
     NOTHING_TO_GAIN,
     LoopSetup,
     OptimizeConfig,
@@ -351,6 +354,38 @@ def test_views_stop_being_cached_once_they_hold_the_view_memory(scene):
     roomy = run(scene, uncached_validation(scene), steps=6, view_memory=1 << 40)
     assert roomy.training_views == 8
     assert roomy.validation_views == {"Q": 6, "near": 2, "far": 2}
+
+
+def test_views_stop_being_cached_once_the_process_holds_the_memory_limit(scene, monkeypatch):
+    monkeypatch.setattr(loop_module, "resident_bytes", lambda: 2_000_000_000)
+    # A limit the process already holds: as a full view memory, the first step's views only.
+    full = run(scene, uncached_validation(scene), steps=6, memory_limit=2_000_000_000)
+    assert full.steps == 6 and full.training_views == 4
+    assert full.validation_views == {"Q": 3, "near": 2, "far": 2}
+    # A byte more of room is not room for a view of the mean size: the same.
+    byte = run(scene, uncached_validation(scene), steps=6, memory_limit=2_000_000_001)
+    assert byte.training_views == 4
+    # Room for every view: as without a limit.
+    roomy = run(scene, uncached_validation(scene), steps=6, memory_limit=3_000_000_000)
+    assert roomy.training_views == 8
+    assert roomy.validation_views == {"Q": 6, "near": 2, "far": 2}
+    # Where the system cannot say what the process holds, no limit applies.
+    monkeypatch.setattr(loop_module, "resident_bytes", lambda: None)
+    unknown = run(scene, uncached_validation(scene), steps=6, memory_limit=1)
+    assert unknown.training_views == 8
+
+
+def test_a_method_limits_its_loops_to_more_memory_than_the_process_holds_as_it_starts(
+    monkeypatch,
+):
+    monkeypatch.setattr("geoscaler.methods.learned.resident_bytes", lambda: 700_000_000)
+    defaults = {"steps": 10}
+    config = loop_config(defaults, MethodOptions(), RunContext())
+    assert config.memory_limit == 700_000_000 + METHOD_MEMORY
+    given = MethodOptions(settings={"optimize": {"memory_limit": None}})
+    assert loop_config(defaults, given, RunContext()).memory_limit is None
+    monkeypatch.setattr("geoscaler.methods.learned.resident_bytes", lambda: None)
+    assert loop_config(defaults, MethodOptions(), RunContext()).memory_limit is None
 
 
 def test_cached_views_count_the_bytes_of_every_tensor_they_hold(scene):

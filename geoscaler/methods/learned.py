@@ -18,8 +18,9 @@ from geoscaler.methods.registry import (
     RunContext,
     output_sizes_for,
 )
-from geoscaler.optim.loop import PLAIN, LoopSetup, Model, OptimizeConfig, optimize
+from geoscaler.optim.loop import METHOD_MEMORY, PLAIN, LoopSetup, Model, OptimizeConfig, optimize
 from geoscaler.optim.validation import Validation, validation_view_sets
+from geoscaler.process import resident_bytes
 from geoscaler.render.renderer import Renderer
 from geoscaler.resize.sizes import SizeRule
 
@@ -33,9 +34,14 @@ def loop_config(
     defaults: Mapping[str, Any], options: MethodOptions, context: RunContext
 ) -> OptimizeConfig:
     """The loop's settings: the method's ``defaults`` (``steps`` included), overridden by
-    ``options.settings["optimize"]``, then by the user's steps, the time left and the seed."""
+    ``options.settings["optimize"]``, then by the user's steps, the time left and the seed;
+    the memory limit :data:`~geoscaler.optim.loop.METHOD_MEMORY` above what the process holds
+    now, unless the settings give one."""
     settings = {**defaults, **options.settings.get("optimize", {})}
     settings["steps"] = options.steps or settings["steps"]
+    resident = resident_bytes()
+    if resident is not None:
+        settings.setdefault("memory_limit", resident + METHOD_MEMORY)
     return OptimizeConfig(time_budget=context.time_budget, seed=options.seed, **settings)
 
 

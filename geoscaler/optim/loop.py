@@ -42,6 +42,7 @@ from geoscaler.optim.majorize import Sloped, majorized_step
 from geoscaler.optim.schedule import Schedule
 from geoscaler.optim.validation import Best as _Best
 from geoscaler.optim.validation import Scores, Validation, ViewCost
+from geoscaler.process import release_free_memory, resident_bytes
 from geoscaler.protocol import RANGE_S
 from geoscaler.render.cameras import Camera, sample_training_cameras
 from geoscaler.render.renderer import Renderer
@@ -77,6 +78,12 @@ VIEW_MEMORY = 2 << 30
 references, taps and their transposes): past them the pool stops growing and the validation
 freezes, as at the end of the caching window, so that a job's memory is bounded whatever its
 budget (a view of a large texture holds tens of MB; see docs/refusals.md, memory)."""
+METHOD_MEMORY = 1_000_000_000
+"""Bytes a method's loops may add to the process's resident size, from the method's start
+(:func:`geoscaler.methods.learned.loop_config`), before they cache no more views. What the job
+holds before (the original, its reference mips, the filters), this, and a step's own passing
+buffers make its peak: an 8192 x 8192 input at 4x stays under 3 GB at any budget, where 1.25 GB
+here measured 2.89 to 3.10 GB (``benchmarks/peak_memory.py``; docs/refusals.md, memory)."""
 CACHED_PER_STEP = 2
 """Views cached after each step while some are missing: a count, not a time share, so that a
 run without a budget is the same on every machine."""
@@ -140,6 +147,13 @@ class OptimizeConfig:
             ``"exact"`` (the protocol renderer) or ``"soft"`` (the paper's soft rasteriser,
             :mod:`geoscaler.render.soft`, with ``soft`` settings). Validation is always exact.
         view_memory: bytes the cached views may hold (:data:`VIEW_MEMORY`; None: no limit).
+        memory_limit: the process's resident bytes at which the loop caches no more views, as
+            ``view_memory`` does (None: no limit; also where the system cannot tell,
+            :func:`geoscaler.process.resident_bytes`); a method sets it :data:`METHOD_MEMORY`
+            above what the process holds as it starts. Freed memory that glibc keeps
+            (:func:`geoscaler.process.keep_freed_memory`) counts, so the resident size is the
+            most the process has held, steps' passing buffers included. Where it stops the
+            caching, a rerun may cache a view more or less (allocators differ).
         finish_when_invisible: stop (``stopped_by`` :data:`NOTHING_TO_GAIN`) as soon as every
             validation set has its least views cached, where a baseline validates at
             :data:`INVISIBLE_PSNR_FG` or more on every one of them (``downsample`` and
@@ -165,6 +179,7 @@ class OptimizeConfig:
     training_renderer: str = "exact"
     soft: SoftSettings = field(default_factory=SoftSettings)
     view_memory: int | None = VIEW_MEMORY
+    memory_limit: int | None = None
     finish_when_invisible: bool = False
 
     def __post_init__(self) -> None:
@@ -301,7 +316,8 @@ class _Caching:
     validation views in turn (whichever has fewer) until one is complete, then the other; the
     validation freezes once complete. Under a budget, once
     :data:`CACHING_SHARE` of it is spent, or once the cached views hold ``config.view_memory``
-    bytes, the pool stops growing and the validation freezes at what is cached.
+    bytes or the process ``config.memory_limit``, the pool stops growing and the validation
+    freezes at what is cached.
     """
 
     def __init__(
@@ -352,16 +368,19 @@ class _Caching:
         return True
 
     def after_step(self) -> None:
-        """Cache :data:`CACHED_PER_STEP` views; past the caching window or the view memory,
-        :meth:`close`."""
+        """Cache :data:`CACHED_PER_STEP` views; past the caching window or the memory limits,
+        :meth:`close`. Then, where the process holds its memory limit, give its free memory
+        back (:func:`~geoscaler.process.release_free_memory`)."""
         if self.window.left() < 0 or self.memory_full():
             self.close()
-            return
-        for _ in range(CACHED_PER_STEP):
-            if self.memory_full() or not self._cache_one():
-                break
-        if self.validation.complete:
-            self.validation.freeze()
+        else:
+            for _ in range(CACHED_PER_STEP):
+                if self.memory_full() or not self._cache_one():
+                    break
+            if self.validation.complete:
+                self.validation.freeze()
+        if self._resident_over(0):
+            release_free_memory()
 
     def close(self) -> None:
         """No more training views; cache the validation views left within the caching window
@@ -374,9 +393,23 @@ class _Caching:
         self.validation.freeze()
 
     def memory_full(self) -> bool:
-        """The cached views hold ``config.view_memory`` bytes or more."""
-        limit = self.config.view_memory
-        return limit is not None and self.view_bytes() >= limit
+        """The cached views hold ``config.view_memory`` bytes or more, or one more view (of
+        their mean size) would take the process to ``config.memory_limit`` resident bytes.
+
+        Read right after a step, the resident size holds that step's passing buffers too
+        (freed memory is kept), so a view is cached only where the next step still fits."""
+        views = self.view_bytes()
+        if self.config.view_memory is not None and views >= self.config.view_memory:
+            return True
+        cached = len(self.pool) + self.validation.num_views
+        return self._resident_over(views // max(cached, 1))
+
+    def _resident_over(self, more: int) -> bool:
+        """The process's resident size plus ``more`` bytes reaches ``config.memory_limit``
+        (False without a limit, or where the system cannot tell)."""
+        limit = self.config.memory_limit
+        resident = None if limit is None else resident_bytes()
+        return resident is not None and resident + more >= limit
 
     def view_bytes(self) -> int:
         """Bytes the training pool and the validation sets hold (:attr:`ViewSet.nbytes` and

@@ -82,8 +82,8 @@ def majorized_step(train: ViewCache, model: Sloped, views: Sequence[int]) -> flo
     loss, gradients, bounds = curvature_bounds(train, model, views)
     with torch.no_grad():
         for parameter, gradient, bound in zip(model.parameters(), gradients, bounds, strict=True):
-            shown = bound > 0
-            if shown.any():
-                parameter.sub_(gradient / (bound + DAMPING * bound[shown].mean()))
+            shown = int(torch.count_nonzero(bound))  # every bound is >= 0 (J >= 0)
+            if shown:
+                parameter.sub_(gradient / (bound + DAMPING * bound.sum() / shown))
     model.project()
     return loss.item()

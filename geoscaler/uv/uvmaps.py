@@ -302,7 +302,9 @@ angle between view ray and surface normal, 8 up to 82.8 degrees. Lookups at more
 may read coarser levels than :func:`face_max_levels` allows for."""
 _LARGE_LAYOUT = 1 << 26
 """(face, texel cell) pairs beyond which a layout counts as reaching every texel."""
-_PAIRS_PER_CHUNK = 1 << 21
+_PAIRS_PER_CHUNK = 1 << 19
+"""(Face, cell) pairs tested at once: about 200 bytes each in flight (float64 normals, centres
+and sides), so ~100 MB, below what a training step of a 2048 x 2048 map holds."""
 
 
 def face_max_levels(
