@@ -83,10 +83,10 @@ def test_a_new_layout_below_the_own_one_on_any_set_stays_out_of_the_race():
     from geoscaler.methods.repacked import _winner
     from geoscaler.optim.validation import Scores
 
-    def trial(q: float, far: list[float]) -> MethodResult:
+    def trial(q: float, far: list[float], steps: int = 5) -> MethodResult:
         per_view = {"Q": np.array([q, q + 1, q - 1]), "far": np.array(far)}
         scores = Scores({"Q": q, "far": float(np.mean(far))}, per_view)
-        loop = LoopFacts(5, 0, scores, True, {}, "steps", 0.0, 0, {}, 0)
+        loop = LoopFacts(steps, 0, scores, True, {}, "steps", 0.0, 0, {}, 0)
         return MethodResult([None], loop=loop)
 
     ranked_by_q = SimpleNamespace(rank=lambda scores: (0.0, scores["Q"]))
@@ -101,12 +101,60 @@ def test_a_new_layout_below_the_own_one_on_any_set_stays_out_of_the_race():
         "unaligned": trial(31.0, [50.5, 50.5, 49.0]),
     }
     facts = LayoutFacts(uv="auto")
-    assert _winner(trials, layouts, facts) == "unaligned"
+    assert _winner(trials, layouts, facts, 5) == "unaligned"
     below = {name: trial.below_own_on for name, trial in facts.race.items()}
     assert below == {"keep": [], "repack": ["far"], "unaligned": []}
     # Below far, the only new layout: the own one goes on though it is 3 dB lower on Q.
     del trials["unaligned"]
-    assert _winner(trials, layouts, facts) == "keep" == facts.used
+    assert _winner(trials, layouts, facts, 5) == "keep" == facts.used
+    # A trial cut short of the first's steps is not ranked, however well it validates.
+    trials["repack"] = trial(33.0, [51.0, 52.0, 50.0], steps=3)
+    assert _winner(trials, layouts, facts, 5) == "keep"
+    assert facts.race["repack"].unfinished and not facts.race["keep"].unfinished
+    trials["repack"] = trial(33.0, [51.0, 52.0, 50.0], steps=5)
+    assert _winner(trials, layouts, facts, 5) == "repack"
+
+
+def test_a_first_trial_of_no_step_ends_the_race_and_its_layout_goes_on(monkeypatch):
+    from types import SimpleNamespace
+
+    import geoscaler.methods.repacked as repacked
+    from geoscaler.methods.registry import LayoutFacts, LoopFacts, MethodResult
+    from geoscaler.optim.loop import OptimizeConfig
+    from geoscaler.optim.validation import Scores
+
+    fits = []
+
+    def fit(self, mesh, rule, layout, model, loop_end, reserve, steps, facts=None, **handover):
+        made = 0 if self.first else steps  # the first trial's share went on caching
+        fits.append((layout.name, made))
+        scores = Scores({"Q": 40.0}, {"Q": np.array([40.0, 41.0, 39.0])})
+        loop = LoopFacts(made, 0, scores, True, {}, "time budget", 0.0, 4, {"Q": 3}, 0)
+        return MethodResult([None], loop=loop)
+
+    monkeypatch.setattr(repacked._Phase, "fit", fit)
+    pool = SimpleNamespace(views=SimpleNamespace(cameras=[]))
+    monkeypatch.setattr(repacked, "training_views", lambda *args: pool)
+    validation = SimpleNamespace(
+        rank=lambda scores: (0.0, scores["Q"]),
+        find_taps=lambda: None,
+        sizes=[(64, 64)],
+        seconds_needed=lambda *args: 0.0,
+    )
+    cpu = SimpleNamespace(device="cpu")
+    layouts = {
+        name: SimpleNamespace(name=name, validation=validation, atlas=None, starts=[], renderer=cpu)
+        for name in ("keep", "repack")
+    }
+    model = SimpleNamespace(restore=lambda textures: None)
+    facts = LayoutFacts(uv="auto")
+    config = OptimizeConfig(steps=10, pool_views=4)
+    result = repacked.raced(
+        None, None, layouts, lambda *args: model, config, RunContext(), 0.0, facts
+    )
+    assert fits == [("keep", 0), ("keep", 10)]  # no trial of the new layout; the own goes on
+    assert list(facts.race) == ["keep"] and facts.used == "keep"
+    assert result.loop.steps == 10
 
 
 def minifying(uv: str, steps: int):
@@ -353,6 +401,7 @@ def test_the_report_says_what_happened_to_the_layout():
             "validation_sets": {"Q": 30.5, "near": 29.25, "far": 31.0},
             "shortfall_db": -0.25,
             "below_own_on": ["far"],
+            "unfinished": True,
         },
     }
     kept = {**repacked, "uv": "auto", "layout_used": "keep", "race": race}
@@ -360,7 +409,8 @@ def test_the_report_says_what_happened_to_the_layout():
         "UV layout (auto): the mesh's own layout kept",
         "  trials (validation PSNR-fg): own layout Q 30.00 dB after 60 steps; repacked Q 30.50 "
         "dB, near 29.25, far 31.00 after 55 steps (-0.25 dB below a filter) (below the own "
-        "layout on far); the best on Q not below the own layout went on",
+        "layout on far) (short of the first trial's steps: not ranked); the best on Q not below "
+        "the own layout went on",
         "  b: layout kept, why",
     ]
     floored = {**repacked, "shipped": "lanczos"}

@@ -125,7 +125,8 @@ class TrialFacts:
         steps: the trial's steps; ``validation_psnr_fg``: its rank's Q (dB);
         validation_sets: set name -> its mean PSNR-fg; shortfall_db: how far it falls below
         the filters' floor on its worst set (0: it clears it); below_own_on: the sets on which
-        it is below the own layout's trial beyond the noise.
+        it is below the own layout's trial beyond the noise; unfinished: it made fewer steps
+        than the first trial (stopped by the budget's end), so it was not ranked.
     """
 
     steps: int
@@ -133,6 +134,7 @@ class TrialFacts:
     validation_sets: dict[str, float]
     shortfall_db: float
     below_own_on: list[str]
+    unfinished: bool = False
 
 
 @dataclass

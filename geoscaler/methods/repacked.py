@@ -293,11 +293,12 @@ def raced(
     new ones, aligned and not), then the one whose trial validates best goes on from its best
     candidate with the steps and the time left.
 
-    Each trial runs at most :data:`TRIAL_SHARE` of the time left when the race starts,
-    counted from its own start (the first trial's views are cached in the whole run's caching
-    window, which may run past its end). The first makes at most that share of the steps, the
-    others as many as the first made (the first's steps are slower: they cache the views
-    all use), so that all are ranked after the same number of steps. Trials are ranked as
+    The first trial runs at most :data:`TRIAL_SHARE` of the time left when the race starts
+    (its views are cached in the whole run's caching window, which may run past its end) and
+    that share of the steps; the others make as many steps as the first made, bounded only by
+    the method's end, so that all are ranked after the same number of steps. A trial that
+    could not make them is not ranked, and a first trial of no step (its share of the budget
+    spent on caching) ends the race: the first layout goes on alone. Trials are ranked as
     the loop ranks candidates (:meth:`Validation.rank`: the same frozen views and floor in
     every layout; a tie keeps the mesh's own); a new layout whose trial is below the own one's
     on some set is out (:func:`_winner`). The winner's loop goes on from its validated
@@ -321,9 +322,9 @@ def raced(
     race = _Trials(config, context, started, end, cameras)
     for name, layout in layouts.items():
         race.run(mesh, rule, name, layout, start_model(mesh, rule, layout.renderer, layout.starts))
-        if _stopped(context) or race.nothing_to_gain:
+        if _stopped(context) or race.nothing_to_gain or race.steps_each == 0:
             break
-    winner = _winner(race.results, layouts, facts)
+    winner = _winner(race.results, layouts, facts, race.steps_each)
     first_step = next(iter(race.results.values())).loop.first_step_seconds
     best, layout, model = race.results[winner], layouts[winner], race.models[winner]
     best_step = best.loop.best_step
@@ -442,23 +443,23 @@ class _Trials:
     def run(
         self, mesh: TexturedMesh, rule: SizeRule, name: str, layout: Layout, model: Any
     ) -> None:
-        """The trial of ``layout`` from ``model``: the first one sets the step count of the
-        others to the steps it made. A trial after the first finds its layout's taps in the
-        validation views (frozen by the first) before its time starts: that is the layout's
-        cost, not its steps'."""
-        if self.results:
-            layout.validation.find_taps()
-        deadline = None
-        if self.end is not None and self.seconds is not None:
-            deadline = min(self.context.clock.now() + self.seconds, self.end)
+        """The trial of ``layout`` from ``model``: the first one, within its share of the time,
+        sets the step count of the others to the steps it made; they run to the method's end at
+        most. A trial after the first finds its layout's taps in the validation views (frozen
+        by the first) before its time starts: that is the layout's cost, not its steps'."""
         first = not self.results
+        if not first:
+            layout.validation.find_taps()
+        deadline = self.end
+        if first and self.end is not None and self.seconds is not None:
+            deadline = min(self.context.clock.now() + self.seconds, self.end)
         phase = _Phase(self.config, self.context, self.started, self.steps, first, last=False)
         pool = training_views(layout.renderer, self.cameras, layout.validation.sizes, True)
         result = phase.fit(mesh, rule, layout, model, deadline, 0.0, self.steps_each, pool=pool)
         self.results[name], self.models[name], self.pools[name] = result, model, pool
         self.steps += result.loop.steps
         if first:
-            self.steps_each = max(result.loop.steps, 1)
+            self.steps_each = result.loop.steps
 
     @property
     def nothing_to_gain(self) -> bool:
@@ -468,12 +469,16 @@ class _Trials:
 
 
 def _winner(
-    trials: dict[str, MethodResult], layouts: dict[str, Layout], facts: LayoutFacts
+    trials: dict[str, MethodResult],
+    layouts: dict[str, Layout],
+    facts: LayoutFacts,
+    steps_each: int,
 ) -> str:
     """The layout whose trial ranks first on the validation (a tie keeps the mesh's own) among
-    those not below the mesh's own layout's trial on any set beyond the noise
-    (:func:`~geoscaler.optim.validation.sets_below`): a new layout better on Q but worse far
-    away does not replace the own one. Each trial's facts go into ``facts.race``."""
+    those that made ``steps_each`` steps and are not below the mesh's own layout's trial on any
+    set beyond the noise (:func:`~geoscaler.optim.validation.sets_below`): a new layout better
+    on Q but worse far away does not replace the own one. The first trial always counts (it
+    set ``steps_each``). Each trial's facts go into ``facts.race``."""
     scores = {name: trial.loop.validation_scores for name, trial in trials.items()}
     ranks = {name: layouts[name].validation.rank(scores[name]) for name in trials}
     own = scores.get("keep")
@@ -485,10 +490,16 @@ def _winner(
             validation_sets={n: round(v, 4) for n, v in scores[name].items()},
             shortfall_db=round(ranks[name][0], 4),
             below_own_on=below[name],
+            unfinished=trial.loop.steps < steps_each,
         )
         for name, trial in trials.items()
     }
-    eligible = [name for name in ranks if not below[name]]
+    first = next(iter(trials))
+    eligible = [
+        name
+        for name in ranks
+        if name == first or (not below[name] and not facts.race[name].unfinished)
+    ]
     winner = max(eligible, key=lambda name: (ranks[name], name == "keep"))
     facts.used = winner
     if layouts[winner].atlas is not None:

@@ -420,22 +420,28 @@ def _layout_lines(method: str, details: dict[str, Any]) -> list[str]:
     if shipped and layout.get("charts_cut"):
         lines.append(_cut_line(layout))
     if details.get("race"):
-        trials = []
-        for name, trial in details["race"].items():
-            sets = trial.get("validation_sets", {})
-            others = "".join(f", {n} {sets[n]:.2f}" for n in ("near", "far") if n in sets)
-            trials.append(
-                f"{LAYOUT_NAMES[name]} Q {trial['validation_psnr_fg']:.2f} dB{others} after "
-                f"{trial['steps']} step{'' if trial['steps'] == 1 else 's'}"
-            )
-            if trial["shortfall_db"] != 0:
-                trials[-1] += f" ({trial['shortfall_db']:+.2f} dB below a filter)"
-            if trial.get("below_own_on"):
-                trials[-1] += f" (below the own layout on {' and '.join(trial['below_own_on'])})"
+        trials = [_trial_words(name, trial) for name, trial in details["race"].items()]
         rule = "the best on Q not below the own layout" if "keep" in details["race"] else "the best"
         lines.append(f"  trials (validation PSNR-fg): {'; '.join(trials)}; {rule} went on")
     lines += [f"  {name}: layout kept, {reason}" for name, reason in layout["kept"].items()]
     return lines
+
+
+def _trial_words(name: str, trial: dict[str, Any]) -> str:
+    """One layout's trial in the race: its validation, steps and why it was out, if it was."""
+    sets = trial.get("validation_sets", {})
+    others = "".join(f", {n} {sets[n]:.2f}" for n in ("near", "far") if n in sets)
+    words = (
+        f"{LAYOUT_NAMES[name]} Q {trial['validation_psnr_fg']:.2f} dB{others} after "
+        f"{trial['steps']} step{'' if trial['steps'] == 1 else 's'}"
+    )
+    if trial["shortfall_db"] != 0:
+        words += f" ({trial['shortfall_db']:+.2f} dB below a filter)"
+    if trial.get("below_own_on"):
+        words += f" (below the own layout on {' and '.join(trial['below_own_on'])})"
+    if trial.get("unfinished"):
+        words += " (short of the first trial's steps: not ranked)"
+    return words
 
 
 def _cut_line(layout: dict[str, Any]) -> str:
