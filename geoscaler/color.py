@@ -38,12 +38,34 @@ class _SrgbDecode(torch.autograd.Function):
 
 
 def linear_to_srgb(x: torch.Tensor) -> torch.Tensor:
-    """Encode linear light to sRGB in [0, 1] (inputs clamped to [0, 1] first), same shape."""
-    x = x.clamp(0.0, 1.0)
-    # clamp_min keeps the unused branch's gradient finite at 0.
-    return torch.where(
-        x <= 0.0031308, x * 12.92, 1.055 * x.clamp_min(0.0031308) ** (1 / 2.4) - 0.055
-    )
+    """Encode linear light to sRGB in [0, 1] (inputs clamped to [0, 1] first), same shape.
+
+    Differentiable; the backward pass keeps only ``x`` (:func:`linear_to_srgb_slope`). The
+    encoding holds two buffers of ``x``'s size at once, not the formula's six: it runs on whole
+    textures each validation."""
+    if x.requires_grad and torch.is_grad_enabled():
+        return _SrgbEncode.apply(x)
+    return _linear_to_srgb(x)
+
+
+def _linear_to_srgb(x: torch.Tensor) -> torch.Tensor:
+    encoded = x.clamp(0.0, 1.0)
+    dark = encoded <= 0.0031308
+    low = encoded * 12.92
+    encoded.clamp_(min=0.0031308).pow_(1 / 2.4).mul_(1.055).sub_(0.055)
+    return torch.where(dark, low, encoded, out=low)
+
+
+class _SrgbEncode(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, x: torch.Tensor) -> torch.Tensor:  # noqa: ANN001
+        ctx.save_for_backward(x)
+        return _linear_to_srgb(x)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:  # noqa: ANN001
+        (x,) = ctx.saved_tensors
+        return grad * linear_to_srgb_slope(x)
 
 
 def srgb_to_linear_slope(x: torch.Tensor) -> torch.Tensor:

@@ -157,6 +157,36 @@ def test_a_first_trial_of_no_step_ends_the_race_and_its_layout_goes_on(monkeypat
     assert result.loop.steps == 10
 
 
+def test_an_aligned_layout_sparser_than_the_own_one_is_not_weighed(monkeypatch):
+    from types import SimpleNamespace
+
+    import geoscaler.methods.repacked as repacked
+    from geoscaler.clock import WALL_CLOCK
+    from geoscaler.methods.registry import LayoutFacts
+
+    def planned(aligned_k: float) -> tuple[list[bool], LayoutFacts]:
+        """The layouts offered where the aligned plan has density ``aligned_k`` (the unaligned
+        one 1.4), and the facts."""
+
+        def plan(mesh, rule, renderer, config, budget, align):
+            k = aligned_k if align else 1.4
+            return SimpleNamespace(moved=True, aligned=align, facts=SimpleNamespace(k=k))
+
+        monkeypatch.setattr(repacked, "plan_layout", plan)
+        facts = LayoutFacts(uv="auto")
+        validation = SimpleNamespace(clock=WALL_CLOCK)
+        offered = repacked._timely_layouts(None, None, None, None, validation, 0.0, None, facts)
+        return [atlas.aligned for atlas in offered], facts
+
+    # Rounded down to powers of two of the original's texels, half the own density: its bake
+    # starts below Lanczos in the own layout (10 dB on a 4096 scan at 4x); only the unaligned
+    # layout is offered, and its facts are the planned ones.
+    offered, facts = planned(0.5)
+    assert offered == [False] and facts.planned.k == 1.4
+    offered, facts = planned(1.2)  # denser than the own layout: both weighed
+    assert offered == [True, False] and facts.planned.k == 1.2
+
+
 def minifying(uv: str, steps: int):
     """``direct`` at 4x on a cube whose 256-texel output even the far views minify (64 pixels
     a side: a far sample spans more than a texel), so its charts are aligned."""

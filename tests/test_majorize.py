@@ -32,10 +32,24 @@ def test_the_slopes_are_the_derivatives_of_the_srgb_curves():
     assert linear_to_srgb_slope(torch.tensor([-0.1, 1.2])).tolist() == [0.0, 0.0]
 
 
-def test_the_srgb_decoding_differentiates_as_its_formula_by_finite_differences():
-    # the decoding's backward pass is the slope itself: checked here against the formula
-    inputs = torch.tensor([0.001, 0.02, 0.04, 0.05, 0.3, 0.7, 0.999], dtype=torch.float64)
-    assert torch.autograd.gradcheck(srgb_to_linear, inputs.requires_grad_(True))
+def test_the_srgb_curves_differentiate_as_their_formulas_by_finite_differences():
+    # the curves' backward passes are the slopes themselves: checked here against the formulas
+    decoded = torch.tensor([0.001, 0.02, 0.04, 0.05, 0.3, 0.7, 0.999], dtype=torch.float64)
+    assert torch.autograd.gradcheck(srgb_to_linear, decoded.requires_grad_(True))
+    linear = torch.tensor([-0.2, 0.001, 0.003, 0.004, 0.2, 0.9, 1.3], dtype=torch.float64)
+    assert torch.autograd.gradcheck(linear_to_srgb, linear.requires_grad_(True))
+
+
+def test_the_srgb_encoding_is_the_standards_formula():
+    x = torch.linspace(-0.1, 1.1, 100_001)
+    clamped = x.clamp(0.0, 1.0)
+    formula = torch.where(
+        clamped <= 0.0031308,
+        clamped * 12.92,
+        1.055 * clamped.clamp_min(0.0031308) ** (1 / 2.4) - 0.055,
+    )
+    assert torch.equal(linear_to_srgb(x), formula)
+    assert torch.equal(linear_to_srgb(x.clone().requires_grad_(True)).detach(), formula)
 
 
 @pytest.fixture(scope="module")

@@ -378,19 +378,16 @@ def _timely_layouts(
     """The new layouts (:data:`NEW_LAYOUTS`), planned and baked by :data:`PREPARING_SHARE` of
     the time from ``started`` to ``end`` (None: no budget): the planned one, and where that
     aligned its charts to the original's mip blocks (:func:`~geoscaler.uv.atlas.alignment_for`)
-    the unaligned one too, time allowing, so that a race weighs them; none where the layout
-    does not move a chart or there is no time for it (the reason in
+    the unaligned one too, time allowing, so that a race weighs them; an aligned one sparser
+    than the mesh's own layout where the views look (``k`` below 1: its scales are powers of two
+    of the original's, rounded down) is not weighed, as its bake starts far below Lanczos in the
+    own layout; none where the layout does not move a chart or there is no time for it (the
+    reason in
     ``facts.skipped``). The first one's facts go in ``facts.planned``. Each bake
     is priced first (:func:`bake_seconds`), so each plan's deadline leaves the bakes their
     time."""
     clock = validation.clock
-    planned_by = baking = None
-    if end is not None:
-        if not validation.view_cost:
-            validation.cache_next()  # prices the bake (the loop would cache it first)
-        sizes = output_sizes_for(mesh, rule, renderer)
-        baking = bake_seconds(sizes, renderer.reference_maps(), renderer, validation.view_cost)
-        planned_by = started + PREPARING_SHARE * (end - started) - baking
+    planned_by, baking = _planning_deadline(mesh, rule, renderer, validation, started, end)
     atlases: list[Atlas] = []
     for align in (True, False):
         deadline = None if planned_by is None else planned_by - len(atlases) * baking
@@ -398,10 +395,12 @@ def _timely_layouts(
             break
         budget = None if deadline is None else unlimited(clock).until(deadline)
         atlas = plan_layout(mesh, rule, renderer, config, budget, align)
-        if align:
+        if align or not atlases:
             facts.planned = atlas.facts
         if not atlas.moved:
             return atlases
+        if atlas.aligned and atlas.facts.k < 1.0:
+            continue  # sparser than the own layout where the views look: not weighed
         if deadline is None or clock.now() <= deadline:
             atlases.append(atlas)
         if not atlas.aligned:
@@ -409,6 +408,25 @@ def _timely_layouts(
     if not atlases:
         facts.skipped = "the time budget left no time to plan and bake a new layout"
     return atlases
+
+
+def _planning_deadline(
+    mesh: TexturedMesh,
+    rule: SizeRule,
+    renderer: Renderer,
+    validation: Validation,
+    started: float,
+    end: float | None,
+) -> tuple[float | None, float]:
+    """``(instant the first plan must be done by, seconds a bake takes)``: the bake priced at
+    a validation view's cost (None and 0 without a budget)."""
+    if end is None:
+        return None, 0.0
+    if not validation.view_cost:
+        validation.cache_next()  # prices the bake (the loop would cache it first)
+    sizes = output_sizes_for(mesh, rule, renderer)
+    baking = bake_seconds(sizes, renderer.reference_maps(), renderer, validation.view_cost)
+    return started + PREPARING_SHARE * (end - started) - baking, baking
 
 
 def _method_end(config: OptimizeConfig, context: RunContext, started: float) -> float | None:
