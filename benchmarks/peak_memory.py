@@ -20,9 +20,10 @@ Usage:
     python benchmarks/peak_memory.py [--size 8192] [--mesh PATH] [--uv keep repack]
         [--steps 3] [--time-budget 120] [--timeline] [--keep DIR]
 
-Run it with the Makefile's malloc settings (``MALLOC_MMAP_THRESHOLD_``,
-``MALLOC_TRIM_THRESHOLD_``) exported, as every timing of the project is measured: glibc then
-keeps freed memory for reuse, so the peak is the most the process held at once.
+``geoscaler`` keeps freed memory for reuse (as the Makefile's ``MALLOC_MMAP_THRESHOLD_`` and
+``MALLOC_TRIM_THRESHOLD_`` do), so the peak is the most the process held at once, freed
+buffers included; run it with and without those variables exported to see both ways in.
+A long ``--time-budget`` shows the memory limit at work: without it the caching would go on.
 """
 
 from __future__ import annotations
@@ -103,7 +104,9 @@ def run_downsample(
     samples: list[tuple[float, int]] = []
     stop = threading.Event()
     start = time.perf_counter()
-    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    # A file, not a pipe: a long run's progress bar would fill a pipe read only at the end.
+    stderr = tempfile.TemporaryFile()
+    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=stderr)
     sampler = threading.Thread(target=_sample, args=(child.pid, samples, stop), daemon=True)
     if timeline:
         sampler.start()
@@ -111,7 +114,9 @@ def run_downsample(
     wall = time.perf_counter() - start
     stop.set()
     child.returncode = os.waitstatus_to_exitcode(status)
-    errors = child.stderr.read().decode(errors="replace")[-2000:] if child.stderr else ""
+    stderr.seek(0)
+    errors = stderr.read().decode(errors="replace")[-2000:]
+    stderr.close()
     return {
         "uv": uv,
         "peak_rss": usage.ru_maxrss * 1024,  # Linux reports kilobytes
