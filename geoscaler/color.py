@@ -7,6 +7,8 @@ every module uses: the data model, image loading, the sampler, the filters, the 
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import torch
 
@@ -16,25 +18,11 @@ def srgb_to_linear(x: torch.Tensor) -> torch.Tensor:
 
     Differentiable; the backward pass keeps only ``x`` (:func:`srgb_to_linear_slope`), not
     the formula's intermediates: on a 2048 x 2048 texture those were ~100 MB a step."""
-    if x.requires_grad and torch.is_grad_enabled():
-        return _SrgbDecode.apply(x)
-    return _srgb_to_linear(x)
+    return _Curve.apply(x, _srgb_to_linear, srgb_to_linear_slope)
 
 
 def _srgb_to_linear(x: torch.Tensor) -> torch.Tensor:
     return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
-
-
-class _SrgbDecode(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx, x: torch.Tensor) -> torch.Tensor:  # noqa: ANN001
-        ctx.save_for_backward(x)
-        return _srgb_to_linear(x)
-
-    @staticmethod
-    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:  # noqa: ANN001
-        (x,) = ctx.saved_tensors
-        return grad * srgb_to_linear_slope(x)
 
 
 def linear_to_srgb(x: torch.Tensor) -> torch.Tensor:
@@ -43,9 +31,7 @@ def linear_to_srgb(x: torch.Tensor) -> torch.Tensor:
     Differentiable; the backward pass keeps only ``x`` (:func:`linear_to_srgb_slope`). The
     encoding holds two buffers of ``x``'s size at once, not the formula's six: it runs on whole
     textures each validation."""
-    if x.requires_grad and torch.is_grad_enabled():
-        return _SrgbEncode.apply(x)
-    return _linear_to_srgb(x)
+    return _Curve.apply(x, _linear_to_srgb, linear_to_srgb_slope)
 
 
 def _linear_to_srgb(x: torch.Tensor) -> torch.Tensor:
@@ -56,16 +42,19 @@ def _linear_to_srgb(x: torch.Tensor) -> torch.Tensor:
     return torch.where(dark, low, encoded, out=low)
 
 
-class _SrgbEncode(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx, x: torch.Tensor) -> torch.Tensor:  # noqa: ANN001
-        ctx.save_for_backward(x)
-        return _linear_to_srgb(x)
+class _Curve(torch.autograd.Function):
+    """An elementwise curve whose backward pass is its slope at the saved input."""
 
     @staticmethod
-    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:  # noqa: ANN001
+    def forward(ctx, x: torch.Tensor, curve: Callable, slope: Callable) -> torch.Tensor:  # noqa: ANN001
+        ctx.save_for_backward(x)
+        ctx.slope = slope
+        return curve(x)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> tuple[torch.Tensor, None, None]:  # noqa: ANN001
         (x,) = ctx.saved_tensors
-        return grad * linear_to_srgb_slope(x)
+        return grad * ctx.slope(x), None, None
 
 
 def srgb_to_linear_slope(x: torch.Tensor) -> torch.Tensor:
