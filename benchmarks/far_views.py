@@ -1,4 +1,4 @@
-"""Why a texture loses far away (issue 17, session 22): PSNR-fg on the first views of the
+"""Why a texture loses far away: PSNR-fg on the first views of the
 protocol's sets, per distance, of bicubic on the mesh's own UVs against the new layout's bake
 alone, or against whole textures resized by bicubic to other sizes.
 

@@ -1,4 +1,4 @@
-"""How far re-allocating the atlas can go (issue 17): per mesh and scale, the texel density
+"""How far re-allocating the atlas can go: per mesh and scale, the texel density
 gain ``k`` the job's new layout reaches and two bounds on any layout that, like it, moves each
 of its charts whole by a similarity at the planned relative scales (where the layout cut
 charts, its pieces are its charts; ``k whole`` is what the uncut charts reached).

@@ -1,4 +1,4 @@
-"""Repacking the atlas (issue 17): bicubic, `direct` on the mesh's own UVs, the bake alone on
+"""Repacking the atlas: bicubic, `direct` on the mesh's own UVs, the bake alone on
 the new layout, and repack + `direct`, per development mesh and scale, protocol 1.
 
 Every method runs through the job's own comparison (`geoscaler.pipeline.job.compare_mesh`), as

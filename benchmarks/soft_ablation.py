@@ -1,4 +1,4 @@
-"""Ablation of the training renderer (issue 19): the same methods trained through the exact
+"""Ablation of the training renderer: the same methods trained through the exact
 renderer and through the paper's soft rasteriser (:mod:`geoscaler.render.soft`), every result scored
 by the exact renderer, as a GPU shows it (protocol 1: Q at 2.4, near 1.5, far 4.0).
 

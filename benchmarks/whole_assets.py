@@ -1,4 +1,4 @@
-"""Whole assets (issue 15): every development mesh downsampled as a user runs it, then measured.
+"""Whole assets: every development mesh downsampled as a user runs it, then measured.
 
 For each mesh and scale: ``geoscaler downsample MESH --scale S -o OUT.glb --report R`` (the
 method and budget given here), then from the report: bytes on disk before (every file the

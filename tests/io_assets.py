@@ -1,8 +1,8 @@
 """Hand-made assets with every map, attribute and reference the writer must keep.
 
 :func:`rich_gltf` is a glTF written byte by byte (not by GeoScaler, not by trimesh) that holds
-what issue 15 lists: TANGENT, COLOR_0 (normalised bytes on one primitive, floats on the other),
-TEXCOORD_1 and a ``texCoord: 1`` reference, ``KHR_texture_transform``,
+what a complete asset carries: TANGENT, COLOR_0 (normalised bytes on one primitive, floats on
+the other), TEXCOORD_1 and a ``texCoord: 1`` reference, ``KHR_texture_transform``,
 ``KHR_materials_clearcoat`` with textures, one image file behind two image entries (as Poly
 Haven's sofa has), one image shown by several slots of both materials, JPEG and PNG images,
 external and embedded.

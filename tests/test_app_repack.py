@@ -1,4 +1,4 @@
-"""The app with ``--uv repack`` (issue 17): the Optimise panel's layout choice reaches the job,
+"""The app with ``--uv repack``: the Optimise panel's layout choice reaches the job,
 live candidates carry the new layout's UVs, and the UV inspector draws the new layout."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Repacking a UV atlas (issue 17): charts scaled by their footprint, packed as similarities,
+"""Repacking a UV atlas: charts scaled by their footprint, packed as similarities,
 the guards, and the bake into the new layout."""
 
 from __future__ import annotations

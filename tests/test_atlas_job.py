@@ -1,4 +1,4 @@
-"""``direct --uv repack|auto`` through the job (issue 17): new UVs, every map following them,
+"""``direct --uv repack|auto`` through the job: new UVs, every map following them,
 references from the original, and the files written."""
 
 from __future__ import annotations

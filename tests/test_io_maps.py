@@ -1,4 +1,4 @@
-"""Every map, attribute and reference of an asset survives loading and saving (issue 15).
+"""Every map, attribute and reference of an asset survives loading and saving.
 
 The data model (``Material.maps``, ``sources``, ``TexturedMesh.images``/``with_images``,
 ``attributes``), what is written (each distinct image once, unchanged ones byte for byte,
