@@ -25,6 +25,7 @@ import json
 import statistics
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -87,7 +88,7 @@ def mesh_rows(
         outputs = {m: comparison.outputs[m, scale] for m in methods if m in LEARNED + ["bake"]}
         facts = [o.layout_facts for o in outputs.values() if o.layout_facts is not None]
         layouts = [f.planned for f in facts if f.planned is not None]
-        layout = layouts[0] if layouts else {}
+        layout = asdict(layouts[0]) if layouts else {}
         relaid = [o.uvs for o in outputs.values() if o.uvs is not None]
         for distance in distances:
             by = {
@@ -106,8 +107,8 @@ def mesh_rows(
                 "k": layout.get("k", 1.0),
                 "charts": layout.get("charts", 0),
                 "kept": layout.get("kept", {}),
-                "k_whole": layout.get("k_whole", layout.get("k", 1.0)),
-                "cut": layout.get("cut", False),
+                "k_whole": layout.get("k_whole") or layout.get("k", 1.0),
+                "cut": bool(layout.get("cut")),
                 "vertex_change": len(mesh.with_uvs(relaid[0]).uvs) - len(mesh.uvs) if relaid else 0,
             }
             if "auto" in outputs:
