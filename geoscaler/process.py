@@ -4,9 +4,9 @@ before torch loads (so no torch import here)."""
 from __future__ import annotations
 
 import ctypes
+import functools
 import importlib
 import os
-import platform
 import signal
 from collections.abc import Callable
 
@@ -15,6 +15,7 @@ KEPT_MMAP_THRESHOLD = 2_000_000_000
 KEPT_TRIM_THRESHOLD = 2**31 - 1
 """Free bytes at the heap's top past which glibc gives memory back (mallopt takes an int)."""
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc's malloc.h
+_MALLOC_VARIABLES = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
 
 
 def configure_process() -> None:
@@ -35,16 +36,11 @@ def keep_freed_memory() -> bool:
     random. Kept memory also makes the resident size the most the process has held so far,
     which the loop's memory limit reads (:func:`resident_bytes`). Left alone where the user set
     either variable, and off glibc."""
-    if "MALLOC_MMAP_THRESHOLD_" in os.environ or "MALLOC_TRIM_THRESHOLD_" in os.environ:
+    glibc = _glibc()
+    if glibc is None or any(name in os.environ for name in _MALLOC_VARIABLES):
         return False
-    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
-        return False
-    try:
-        mallopt = ctypes.CDLL("libc.so.6").mallopt
-    except (OSError, AttributeError):
-        return False
-    kept = mallopt(_M_MMAP_THRESHOLD, KEPT_MMAP_THRESHOLD) == 1
-    return mallopt(_M_TRIM_THRESHOLD, KEPT_TRIM_THRESHOLD) == 1 and kept
+    kept = glibc.mallopt(_M_MMAP_THRESHOLD, KEPT_MMAP_THRESHOLD) == 1
+    return glibc.mallopt(_M_TRIM_THRESHOLD, KEPT_TRIM_THRESHOLD) == 1 and kept
 
 
 def release_free_memory() -> bool:
@@ -52,13 +48,26 @@ def release_free_memory() -> bool:
     where it could. With freed memory kept (:func:`keep_freed_memory`), buffers of different
     sizes freed and made again step after step leave holes that only grow the resident size;
     this returns them, and the next buffers there cost their page faults once."""
-    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+    glibc = _glibc()
+    if glibc is None:
         return False
-    try:
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):
-        return False
+    glibc.malloc_trim(0)
     return True
+
+
+@functools.cache
+def _glibc() -> ctypes.CDLL | None:
+    """The C library where it is glibc (None elsewhere)."""
+    try:
+        version = os.confstr("CS_GNU_LIBC_VERSION")
+    except (AttributeError, ValueError, OSError):
+        return None
+    if not version or not version.startswith("glibc"):
+        return None
+    try:
+        return ctypes.CDLL("libc.so.6")
+    except OSError:
+        return None
 
 
 def resident_bytes() -> int | None:

@@ -82,8 +82,9 @@ METHOD_MEMORY = 1_000_000_000
 """Bytes a method's loops may add to the process's resident size, from the method's start
 (:func:`geoscaler.methods.learned.loop_config`), before they cache no more views. What the job
 holds before (the original, its reference mips, the filters), this, and a step's own passing
-buffers make its peak: an 8192 x 8192 input at 4x stays under 3 GB at any budget, where 1.25 GB
-here measured 2.89 to 3.10 GB (``benchmarks/peak_memory.py``; docs/refusals.md, memory)."""
+buffers make its peak: an 8192 x 8192 input at 4x peaked at 2.50 to 2.56 GB under a 180 s
+budget, where 1.25 GB here gave 2.89 to 3.10 GB (``benchmarks/peak_memory.py``;
+docs/refusals.md, memory)."""
 CACHED_PER_STEP = 2
 """Views cached after each step while some are missing: a count, not a time share, so that a
 run without a budget is the same on every machine."""
