@@ -382,10 +382,8 @@ def _timely_layouts(
     than the mesh's own layout where the views look (``k`` below 1: its scales are powers of two
     of the original's, rounded down) is not weighed, as its bake starts far below Lanczos in the
     own layout; none where the layout does not move a chart or there is no time for it (the
-    reason in
-    ``facts.skipped``). The first one's facts go in ``facts.planned``. Each bake
-    is priced first (:func:`bake_seconds`), so each plan's deadline leaves the bakes their
-    time."""
+    reason in ``facts.skipped``). The first one's facts go in ``facts.planned``. Each bake is
+    priced first (:func:`bake_seconds`), so each plan's deadline leaves the bakes their time."""
     clock = validation.clock
     planned_by, baking = _planning_deadline(mesh, rule, renderer, validation, started, end)
     atlases: list[Atlas] = []
