@@ -6,10 +6,7 @@ import platform
 import subprocess
 import sys
 
-import numpy as np
 import pytest
-
-from geoscaler.process import resident_bytes
 
 linux_glibc = pytest.mark.skipif(
     platform.system() != "Linux" or platform.libc_ver()[0] != "glibc",
@@ -29,14 +26,6 @@ after = resident_bytes()
 release_free_memory()
 print(kept, held - before, after - before, resident_bytes() - before)
 """
-
-
-@linux_glibc
-def test_the_resident_size_counts_a_buffer_once_it_is_touched():
-    before = resident_bytes()
-    buffer = np.ones(100_000_000 // 8)  # 100 MB
-    assert resident_bytes() - before >= 90_000_000
-    del buffer
 
 
 def _free_a_buffer(**environment: str) -> tuple[str, int, int, int]:
