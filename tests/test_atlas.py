@@ -374,6 +374,19 @@ def test_bake_follows_each_chart_to_its_new_place():
     assert np.abs(baked[row, col].astype(int) - source).max() <= 64
 
 
+def test_a_bake_read_in_pieces_is_the_bake_read_at_once(monkeypatch):
+    import geoscaler.uv.bake as bake_module
+
+    mesh = cube_mesh(texture_size=64)
+    texture = mesh.materials[0].base_color_texture
+    atlas = repack(mesh, [(64, 64)], footprint_ids(mesh, [10] * 6), 256)
+    layout = ChartMaps(atlas.uvs, atlas.chart_of_face, atlas.linear, atlas.offset)
+    whole, _ = bake(texture, COLOR, layout, 64, oversample=2)
+    monkeypatch.setattr(bake_module, "BAKE_SAMPLES", 1000)  # 17 pieces of the 128 x 128 samples
+    pieces, _ = bake(texture, COLOR, layout, 64, oversample=2)
+    np.testing.assert_array_equal(pieces, whole)
+
+
 def test_normals_bake_as_unit_vectors_and_data_per_channel():
     vectors = np.array([[[0.6, 0.0, 0.8]]], np.float32)
     pixels = np.round((vectors + 1) / 2 * 255).astype(np.uint8)

@@ -31,6 +31,10 @@ from geoscaler.resize.filters import resize_float
 from geoscaler.resize.maps import resize_map
 from geoscaler.resize.sizes import COLOR, NORMAL
 
+BAKE_SAMPLES = 1 << 20
+"""Samples of a bake read from the original at once: a 4096 x 4096 bake (1024 texels at 4
+samples a side) read in one piece held several GB of coordinates and taps."""
+
 
 def decode(pixels: np.ndarray, kind: str) -> torch.Tensor:
     """``(H, W, C)`` uint8 map to ``(H, W, C)`` float32 values that filter linearly
@@ -106,18 +110,13 @@ def bake(
     texture = EncodedMipTexture(pixels, decoding=decoding(kind, pixels.shape[2]))
     grid = size * oversample
     labels, covered = _nearest_chart(layout, grid)
-    sample = torch.nonzero(labels.view(-1) >= 0).squeeze(1)
-    chart = labels.view(-1)[sample]
-    inverse = torch.linalg.inv(torch.from_numpy(layout.linear))[chart]  # (N, 2, 2)
-    x = (sample % grid).double() + 0.5
-    y = (sample // grid).double() + 0.5
-    new = torch.stack([x / grid, 1.0 - y / grid], dim=1) - torch.from_numpy(layout.offset)[chart]
-    old = torch.einsum("nij,nj->ni", inverse, new).float()
-    step_x = (inverse[:, :, 0] / grid).float()
-    step_y = (-inverse[:, :, 1] / grid).float()
-    footprint = UVFootprint(old[:, 0], old[:, 1], *step_x.T, *step_y.T)
+    inverses = torch.linalg.inv(torch.from_numpy(layout.linear))  # (C, 2, 2)
+    offsets = torch.from_numpy(layout.offset)
     values = torch.zeros(grid * grid, texture.channels)
-    values[sample] = texture.sample(footprint).T
+    for sample in torch.split(torch.nonzero(labels.view(-1) >= 0).squeeze(1), BAKE_SAMPLES):
+        chart = labels.view(-1)[sample]
+        footprint = _footprint_back(sample, inverses[chart], offsets[chart], grid)
+        values[sample] = texture.sample(footprint).T
     values = values.view(grid, grid, -1)
     if oversample > 1 and kind == COLOR:  # Lanczos on the sRGB values, as the baseline,
         values = stored(values, kind).numpy()  # in float: rounded to 8 bits once
@@ -129,6 +128,20 @@ def bake(
         baked = encode(values, kind)
     texel_covered = covered.view(size, oversample, size, oversample).any(3).any(1)
     return baked, texel_covered.numpy()
+
+
+def _footprint_back(
+    sample: torch.Tensor, inverse: torch.Tensor, offset: torch.Tensor, grid: int
+) -> UVFootprint:
+    """Where the ``(N,)`` samples (flat indices on the ``grid x grid`` bake) read the original:
+    each through its chart's ``(N, 2, 2)`` inverse map and ``(N, 2)`` offset."""
+    x = (sample % grid).double() + 0.5
+    y = (sample // grid).double() + 0.5
+    new = torch.stack([x / grid, 1.0 - y / grid], dim=1) - offset
+    old = torch.einsum("nij,nj->ni", inverse, new).float()
+    step_x = (inverse[:, :, 0] / grid).float()
+    step_y = (-inverse[:, :, 1] / grid).float()
+    return UVFootprint(old[:, 0], old[:, 1], *step_x.T, *step_y.T)
 
 
 @dataclass
