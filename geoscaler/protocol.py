@@ -1,5 +1,5 @@
-"""Protocol 1 of PROTOCOL.md in one place: every constant of the evaluation, and the settings
-object that says how closely a run follows it.
+"""The protocols of PROTOCOL.md in one place: every constant of the evaluation, and the
+settings object that says how closely a run follows it.
 
 A leaf: it imports nothing from geoscaler, so every layer may read it.
 
@@ -13,6 +13,9 @@ A leaf: it imports nothing from geoscaler, so every layer may read it.
   it with Lanczos before evaluation (an evaluation convention, not a product limit).
 - Gains are PSNR-fg minus ``GAIN_REFERENCE``'s; texture memory is ``BYTES_PER_TEXEL`` bytes a
   texel (uncompressed RGBA8; GPUs pad RGB8 to RGBA8), mip chain not counted.
+- Protocol 2 (lit): the key and fill lights (``KEY_LIGHT``, ``FILL_LIGHT``), the ambient
+  ``AMBIENT_RADIANCE`` and the smallest perceptual roughness ``MIN_PERCEPTUAL_ROUGHNESS``;
+  everything else is protocol 1's, but references are never reduced.
 """
 
 from __future__ import annotations
@@ -36,6 +39,13 @@ RANGE_S = (1.8, 3.0)
 REFERENCE_MAX_SIZE = 2048
 GAIN_REFERENCE = "bicubic"
 BYTES_PER_TEXEL = 4
+
+# Protocol 2 (lit materials). Lights follow the camera: ``(up share, right share, irradiance)``
+# of the key and fill lights, whose directions are ``normalize(d + up c_up + right c_right)``.
+KEY_LIGHT = (0.5, -0.5, 2.0)
+FILL_LIGHT = (-0.3, 0.8, 0.6)
+AMBIENT_RADIANCE = 0.15
+MIN_PERCEPTUAL_ROUGHNESS = 0.05
 
 
 @dataclass(frozen=True)
