@@ -22,6 +22,7 @@ from geoscaler.resize.maps import (
     normal_shortening,
     resize_map,
     texture_class,
+    toksvig_roughness,
 )
 
 HALF_STEP = 1 / 255
@@ -294,3 +295,37 @@ def test_working_in_row_bands_changes_no_value(kind, monkeypatch):
     whole = resize_map(pixels, (37, 31), kind, alpha_cutoff=0.5)  # default: one 256-row band
     monkeypatch.setattr(maps, "_BAND", 7)
     assert (resize_map(pixels, (37, 31), kind, alpha_cutoff=0.5) == whole).all()
+
+
+# ----------------------------------------------------------------------------- Toksvig roughness
+
+
+def test_toksvig_widens_roughness_by_what_a_bumpy_normal_map_loses():
+    bumpy = tilted_quad_normals(12, 20, np.radians(30))
+    shortening = normal_shortening(bumpy, (6, 10))
+    packed = np.zeros((6, 10, 3), np.uint8)
+    packed[..., 0], packed[..., 1], packed[..., 2] = 200, 128, 30
+    widened = toksvig_roughness(packed, shortening)
+    s = shortening.astype(np.float64)
+    expected = np.round(((128 / 255) ** 4 + 2 * (1 - s) / s) ** 0.25 * 255)
+    assert (widened[..., 1] == expected).all()
+    assert (
+        abs(
+            int(widened[0, 0, 1])
+            - round((0.5**4 + 2 * (1 / np.cos(np.radians(30)) - 1)) ** 0.25 * 255)
+        )
+        <= 1
+    )
+    assert (widened[..., [0, 2]] == packed[..., [0, 2]]).all()  # occlusion, metallic kept
+
+
+def test_toksvig_leaves_flat_normals_grey_maps_and_zero_factors_alone():
+    packed = np.random.default_rng(3).integers(0, 256, (6, 10, 3), dtype=np.uint8)
+    flat = np.ones((3, 5), np.float32)
+    assert (toksvig_roughness(packed, flat) == packed).all()  # resampled to 6 x 10, still flat
+    bumpy = np.full((6, 10), 0.5, np.float32)
+    assert (toksvig_roughness(packed[..., :1], bumpy) == packed[..., :1]).all()
+    assert (toksvig_roughness(packed, bumpy, roughness_factor=0.0) == packed).all()
+    widened = toksvig_roughness(packed, bumpy, roughness_factor=0.5)
+    assert (widened[..., 1] >= packed[..., 1]).all()
+    assert (widened[..., 1] == 255).sum() > 0  # a^2 capped at 1: r = 1 is G = 255 / 0.5, clipped

@@ -11,7 +11,7 @@ from mesh_support import mesh_of
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import Material, SourceImage, TexturedMesh
 from geoscaler.methods import MethodOptions, RunContext, run_method
-from geoscaler.pipeline.shipping import ship_asset
+from geoscaler.pipeline.shipping import ship_asset, with_toksvig_roughness
 from geoscaler.protocol import Evaluation
 from geoscaler.render.renderer import Renderer
 from geoscaler.resize.maps import METHOD_NAMES
@@ -113,18 +113,56 @@ def test_the_network_does_not_warp_uvs_that_other_maps_read():
         run_method("geoscaler", mesh, 4, options)
 
 
-def test_the_base_colour_ships_lossless_and_other_maps_keep_their_format():
+def jpeg_asset(emissive: bool = False) -> TexturedMesh:
+    """:func:`shared_pbr_mesh` as a JPEG asset comes in: one JPEG source per image, shared;
+    with ``emissive``, the first material also has an emissive (colour) map."""
     mesh = shared_pbr_mesh()
-    jpeg = {}  # as a JPEG asset comes in: one source per image, shared
+    if emissive:
+        glow = _image(64, 64)
+        mesh.materials[0].maps["emissiveTexture"] = glow
+        mesh.materials[0].sources["emissiveTexture"] = _source(glow, "glow")
+    jpeg = {}
     for material in mesh.materials:
         material.sources = {
             slot: jpeg.setdefault(id(s), SourceImage(s.pixels, "image/jpeg", s.data, s.name))
             for slot, s in material.sources.items()
         }
+    return mesh
+
+
+def test_the_base_colour_and_smaller_normal_and_data_maps_ship_lossless():
+    mesh = jpeg_asset(emissive=True)
     made = np.zeros((16, 16, 3), np.uint8)
     out, _ = ship_asset(mesh, size_plan({"all": 4}, {}), [made, made], "direct")
     left, right = out.materials
-    assert left.sources["baseColorTexture"].mime == "image/png"
+    for slot in ("baseColorTexture", "normalTexture", "metallicRoughnessTexture"):
+        assert left.sources[slot].mime == "image/png", slot
     assert left.sources["baseColorTexture"] is right.sources["baseColorTexture"]
-    assert left.sources["normalTexture"].mime == "image/jpeg"
-    assert left.sources["metallicRoughnessTexture"].mime == "image/jpeg"
+    assert left.sources["normalTexture"] is right.sources["normalTexture"]
+    assert left.sources["emissiveTexture"].mime == "image/jpeg"  # a colour map keeps its format
+
+
+def test_maps_the_plan_keeps_at_their_size_keep_their_format_and_bytes():
+    mesh = jpeg_asset()
+    made = np.zeros((16, 16, 3), np.uint8)
+    out, shipped = ship_asset(
+        mesh, SizePlan(SizeRule(4), SizeRule(), SizeRule(4)), [made, made], "direct"
+    )
+    normal = out.materials[0].sources["normalTexture"]
+    assert normal.mime == "image/jpeg"
+    assert out.materials[0].maps["normalTexture"] is normal.pixels  # written verbatim
+    assert out.materials[0].sources["metallicRoughnessTexture"].mime == "image/png"
+
+
+def test_toksvig_widens_the_roughness_of_materials_whose_normal_map_got_smaller():
+    mesh = shared_pbr_mesh()  # random texels: a bumpy normal map
+    made = np.zeros((16, 16, 3), np.uint8)
+    shipped, _ = ship_asset(mesh, size_plan({"all": 4}, {}), [made, made], "direct")
+    widened = with_toksvig_roughness(mesh, shipped)
+    before = shipped.materials[0].maps["metallicRoughnessTexture"]
+    after = widened.materials[0].maps["metallicRoughnessTexture"]
+    assert (after[..., 1] >= before[..., 1]).all() and (after[..., 1] > before[..., 1]).any()
+    assert (after[..., [0, 2]] == before[..., [0, 2]]).all()
+    kept, _ = ship_asset(mesh, SizePlan(SizeRule(4), SizeRule(), SizeRule(4)), [made, made], "d")
+    unchanged = with_toksvig_roughness(mesh, kept).materials[0].maps["metallicRoughnessTexture"]
+    assert unchanged is kept.materials[0].maps["metallicRoughnessTexture"]

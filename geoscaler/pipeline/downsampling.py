@@ -38,7 +38,7 @@ from geoscaler.pipeline.shipping import (
     ShippedMap,
     relayout_maps,
     ship_asset,
-    with_lossless_base_colors,
+    with_lossless_formats,
     without_stale_tangents,
 )
 from geoscaler.protocol import Evaluation
@@ -151,7 +151,7 @@ def prepare(
             "smaller, so there is nothing for the method to do; give --scale or --max-size "
             "for every class (e.g. --scale 4) or for color (--scale color=2)"
         )
-    files = output_files(with_lossless_base_colors(mesh), output, image_format=image_format)
+    files = output_files(with_lossless_formats(mesh, plan), output, image_format=image_format)
     if report_path is not None:
         _check_distinct(report_path, files, "a file of the output mesh")
     reports = [] if report_path is None else [report_path]

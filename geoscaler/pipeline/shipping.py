@@ -18,12 +18,20 @@ import numpy as np
 from geoscaler.io.slots import slot_info
 from geoscaler.mesh import Material, SourceImage, TexturedMesh
 from geoscaler.protocol import BYTES_PER_TEXEL
-from geoscaler.resize.maps import METHOD_NAMES, resize_map, texture_class
+from geoscaler.resize.maps import (
+    METHOD_NAMES,
+    normal_shortening,
+    resize_map,
+    texture_class,
+    toksvig_roughness,
+)
 from geoscaler.resize.sizes import COLOR, SizePlan
 from geoscaler.uv.atlas import Atlas
 from geoscaler.uv.bake import ChartMaps, bake
 
 BASE_COLOR = "baseColorTexture"
+NORMAL_SLOT = "normalTexture"
+METALLIC_ROUGHNESS_SLOT = "metallicRoughnessTexture"
 LOSSLESS = "image/png"
 
 
@@ -70,20 +78,35 @@ def alpha_cutoff(material: Material) -> float | None:
     return float(material.properties.get("alphaCutoff", 0.5))
 
 
-def with_lossless_base_colors(mesh: TexturedMesh) -> TexturedMesh:
-    """``mesh`` with every base colour's image marked PNG (sharing kept): the base colour ships
-    as the job validated it, 8-bit, and a lossy re-encoding (a JPEG or WebP input's format)
-    would ship something else, measurably worse than what was validated. Its other maps keep
-    their input's format."""
+def with_lossless_formats(mesh: TexturedMesh, plan: SizePlan) -> TexturedMesh:
+    """``mesh`` with the images marked PNG that must ship lossless (sharing kept):
+
+    - every base colour: it ships as the job validated it, 8-bit, and a lossy re-encoding (a
+      JPEG or WebP input's format) would ship something else, measurably worse;
+    - every normal or data map the plan makes smaller: JPEG's colour transform and chroma
+      subsampling mix the channels of a packed map (occlusion, roughness, metallic) and the
+      components of a normal, which lit renders show (docs/protocol.md, protocol 2).
+
+    Colour maps other than the base colour (emissive...) and maps the plan keeps at their
+    size keep their input's format (a kept map ships its input's very bytes)."""
     marked: dict[int, SourceImage] = {}
     materials = []
     for material in mesh.materials:
-        source = material.sources.get(BASE_COLOR)
-        if source is not None and source.mime != LOSSLESS:
-            png = marked.setdefault(id(source), replace(source, mime=LOSSLESS))
-            material = replace(material, sources={**material.sources, BASE_COLOR: png})
-        materials.append(material)
+        sources = dict(material.sources)
+        for slot, pixels in material.textures().items():
+            source = sources.get(slot)
+            if source is None or source.mime == LOSSLESS or not _ships_lossless(slot, pixels, plan):
+                continue
+            sources[slot] = marked.setdefault(id(source), replace(source, mime=LOSSLESS))
+        materials.append(replace(material, sources=sources))
     return replace(mesh, materials=materials)
+
+
+def _ships_lossless(slot: str, pixels: np.ndarray, plan: SizePlan) -> bool:
+    if slot == BASE_COLOR:
+        return True
+    kind = texture_class(slot)
+    return kind != COLOR and plan.rule(kind).size(*pixels.shape[:2]) != pixels.shape[:2]
 
 
 def relayout_maps(
@@ -132,10 +155,11 @@ def ship_asset(
 
     Returns:
         The mesh to write (every texture replaced by its shipped array, sharing kept; base
-        colours marked lossless, :func:`with_lossless_base_colors`) and one
+        colours and smaller normal and data maps marked lossless,
+        :func:`with_lossless_formats`) and one
         :class:`ShippedMap` per distinct texture, in :meth:`TexturedMesh.images` order.
     """
-    mesh = with_lossless_base_colors(mesh)
+    mesh = with_lossless_formats(mesh, plan)
     made = {}
     for material, texture in zip(mesh.materials, base_colors, strict=True):
         original = material.base_color_texture
@@ -164,6 +188,26 @@ def ship_asset(
         sizes = pixels.shape[:2], out.shape[:2]
         shipped.append(ShippedMap(names, kind, method, *sizes, before, out, source))
     return mesh.with_images(replacements), shipped
+
+
+def with_toksvig_roughness(original: TexturedMesh, shipped: TexturedMesh) -> TexturedMesh:
+    """``shipped`` with the roughness of every material whose normal map got smaller widened
+    by what the normal map lost (:func:`geoscaler.resize.maps.toksvig_roughness`, from the
+    original's full-resolution normal map). Materials without a metallic-roughness map, or
+    with a normal map at its size, are unchanged; a map several materials share is widened
+    once, by the first one's normal map."""
+    replacements: dict[int, np.ndarray] = {}
+    for before, after in zip(original.materials, shipped.materials, strict=True):
+        normal, normal_out = before.maps.get(NORMAL_SLOT), after.maps.get(NORMAL_SLOT)
+        packed = after.maps.get(METALLIC_ROUGHNESS_SLOT)
+        if normal is None or normal_out is None or packed is None or id(packed) in replacements:
+            continue
+        if normal_out.shape[:2] == normal.shape[:2]:
+            continue
+        shortening = normal_shortening(normal, normal_out.shape[:2])
+        factor = float(after.properties.get("pbrMetallicRoughness", {}).get("roughnessFactor", 1))
+        replacements[id(packed)] = toksvig_roughness(packed, shortening, factor)
+    return shipped.with_images(replacements)
 
 
 def without_stale_tangents(mesh: TexturedMesh, atlas: Atlas) -> TexturedMesh:

@@ -58,6 +58,7 @@ __all__ = [
     "resize_alpha",
     "resize_map",
     "texture_class",
+    "toksvig_roughness",
 ]
 
 
@@ -183,6 +184,43 @@ def normal_shortening(pixels: np.ndarray, size: tuple[int, int]) -> np.ndarray:
         return np.ones(size, np.float32)
     lengths = np.linalg.norm(_mean_unit_normals(pixels, size), axis=-1)
     return np.clip(lengths, 1e-6, 1.0).astype(np.float32)
+
+
+def toksvig_roughness(
+    metallic_roughness: np.ndarray, shortening: np.ndarray, roughness_factor: float = 1.0
+) -> np.ndarray:
+    """A metallic-roughness map whose roughness (G) is widened by a normal map's shortening.
+
+    A minified normal map loses the variance of its normals; under light that variance is
+    what made highlights spread. Toksvig's factor gives it back as roughness: with ``s`` the
+    shortening (:func:`normal_shortening`), the variance ``(1 - s) / s`` is added to the GGX
+    ``a^2`` twice, as Filament's specular anti-aliasing adds its kernel roughness:
+    ``a'^2 = min(1, a^2 + 2 (1 - s) / s)`` with ``a = r^2`` and ``r = G / 255 x factor``.
+
+    Args:
+        metallic_roughness: ``(h, w, C)`` uint8 map at its shipping size, ``C`` 3 or 4
+            (roughness in G; grey maps, whose one channel is every value, are returned as
+            they are).
+        shortening: ``(hn, wn)`` float32 in (0, 1], at the normal map's shipping size;
+            resampled bilinearly to ``(h, w)`` where the sizes differ.
+        roughness_factor: the material's ``roughnessFactor``; 0 leaves the map as it is.
+
+    Returns:
+        ``(h, w, C)`` uint8, a new array; only G changes, and never gets smaller.
+    """
+    out = metallic_roughness.copy()
+    if out.ndim != 3 or out.shape[2] < 3 or roughness_factor <= 0:
+        return out
+    height, width = out.shape[:2]
+    if shortening.shape != (height, width):
+        plane = Image.fromarray(np.asarray(shortening, np.float32))
+        shortening = np.asarray(plane.resize((width, height), Image.Resampling.BILINEAR))
+    s = np.clip(shortening, 1e-6, 1.0).astype(np.float64)
+    roughness = out[..., 1] / 255.0 * roughness_factor
+    alpha_sq = np.minimum(roughness**4 + 2.0 * (1.0 - s) / s, 1.0)
+    widened = np.clip(alpha_sq**0.25 / roughness_factor, 0.0, 1.0) * 255.0
+    out[..., 1] = np.maximum(np.round(widened), out[..., 1]).astype(np.uint8)
+    return out
 
 
 def alpha_coverage(alpha: np.ndarray, alpha_cutoff: float) -> float:
