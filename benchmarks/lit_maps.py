@@ -170,7 +170,7 @@ def score_mesh(path: Path, scale: int, views: int, budget: float | None) -> dict
         results = {name: Scores() for name in candidates}
         for set_name, distance in SETS.items():
             cameras = [validation_cameras(distance)[i] for i in order]
-            scores = lit_scores(mesh, list(candidates.values()), cameras, "cpu")
+            scores, _ = lit_scores(mesh, list(candidates.values()), cameras, "cpu")
             for name, per_view in zip(candidates, scores, strict=True):
                 results[name].lit_psnr_fg[set_name] = float(per_view["psnr_fg"].mean())
                 results[name].lit_ssim_fg[set_name] = float(per_view["ssim_fg"].mean())

@@ -193,7 +193,7 @@ def cmd_compare(args: argparse.Namespace) -> None:
     from tqdm import tqdm
 
     from geoscaler.io import load_mesh, save_png, write_atomically
-    from geoscaler.pipeline.arguments import comparison_settings
+    from geoscaler.pipeline.arguments import check_protocol, comparison_settings
     from geoscaler.pipeline.job import compare_mesh, prepare_out_dir
     from geoscaler.render.renderer import Renderer
     from geoscaler.report.console import CompareProgress
@@ -206,6 +206,7 @@ def cmd_compare(args: argparse.Namespace) -> None:
     )
 
     scales, methods, distances, options = comparison_settings(args)
+    protocol = None if args.protocol is None else check_protocol(args.protocol)
     mesh_path = Path(args.mesh)
     json_name = f"{mesh_path.stem}_compare.json"
     pictures = {scale: f"{mesh_path.stem}_compare_x{scale}.png" for scale in scales}
@@ -218,15 +219,16 @@ def cmd_compare(args: argparse.Namespace) -> None:
     renderer = Renderer(mesh, options.device, args.evaluation)
     with tqdm(desc=mesh_path.name, unit="step", leave=False) as bar:
         comparison = compare_mesh(
-            mesh, scales, methods, distances, options, renderer, CompareProgress(bar)
-        )
+            mesh, scales, methods, distances, options, renderer, CompareProgress(bar),
+            protocol=protocol,
+        )  # fmt: skip
     document = comparison_json(mesh_path, comparison)
     document["device"] = describe_device(comparison.device)
     text = dumps(document)
     if args.json:
         print(text)
     else:
-        print(f"mesh {mesh_path}   protocol {PROTOCOL}   device {document['device']}")
+        print(f"mesh {mesh_path}   protocol {comparison.protocol}   device {document['device']}")
         print(format_table(comparison.rows))
     if args.out:
         out = Path(args.out)
@@ -290,7 +292,9 @@ def _add_network_arguments(parser: argparse.ArgumentParser, variants: str) -> No
     )
 
 
-def _add_method_arguments(parser: argparse.ArgumentParser, scales: list[int]) -> None:
+def _add_method_arguments(
+    parser: argparse.ArgumentParser, scales: list[int], protocol_default: str
+) -> None:
     """Flags shared by compare and bench: scales, methods, view sets, device, method settings."""
     default = " ".join(map(str, scales))
     parser.add_argument(
@@ -309,6 +313,12 @@ def _add_method_arguments(parser: argparse.ArgumentParser, scales: list[int]) ->
         nargs="+",
         default=[2.4],
         help="view-set distances: 2.4 is the validation set, 1.5 near, 4.0 far (default 2.4)",
+    )
+    parser.add_argument(
+        "--protocol",
+        type=int,
+        help="1: the unlit base colour (the paper's); 2: every map of a material lit, each "
+        f"method's asset as it ships (default: {protocol_default}; see docs/protocol.md)",
     )
     parser.add_argument("--json", action="store_true", help="print JSON instead of tables")
     parser.add_argument("--out", help="folder to write results and pictures into")
@@ -515,7 +525,9 @@ def _add_compare_command(commands: argparse._SubParsersAction) -> None:
         "compare", help="compare downsampling methods on one mesh (protocol metrics, pictures)"
     )
     compare.add_argument("mesh", help="OBJ, glTF or GLB file")
-    _add_method_arguments(compare, scales=[4])
+    _add_method_arguments(
+        compare, [4], "2 for a mesh with normal or metallic-roughness maps, else 1"
+    )
     compare.set_defaults(run=cmd_compare)
 
 
@@ -525,7 +537,7 @@ def _add_bench_command(commands: argparse._SubParsersAction) -> None:
         "bench", help="compare methods over many meshes: tables, CSV/JSON/Markdown, plot"
     )
     bench.add_argument("paths", nargs="+", metavar="PATH", help="mesh files or folders")
-    _add_method_arguments(bench, scales=[4, 8])
+    _add_method_arguments(bench, [4, 8], "1, for every mesh, so that means average like with like")
     bench.set_defaults(run=cmd_bench)
 
 

@@ -112,6 +112,14 @@ def test_bench_json_to_stdout(good_glb, capsys):
     assert document["protocol"] == 1 and document["results"][0]["gain_db"] == 0.0
 
 
+def test_bench_under_protocol_2_says_so_and_the_command_line_keeps_it(good_glb, capsys):
+    argv = ["bench", str(good_glb), "--scale", "4", "--methods", "bicubic", "--protocol", "2"]
+    assert main([*argv, "--json"], evaluation=ONE_VIEW) == 0
+    document = json.loads(capsys.readouterr().out)
+    assert document["protocol"] == 2 and "--protocol 2" in document["command"]
+    assert document["results"][0]["gain_db"] == 0.0
+
+
 def test_bench_fails_when_no_mesh_can_be_read(tmp_path, capsys):
     (tmp_path / "broken.obj").write_bytes(b"\x00\x01 not a mesh")
     assert main(["bench", str(tmp_path), "--methods", "box"]) == 2

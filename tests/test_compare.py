@@ -21,6 +21,7 @@ from geoscaler.pipeline.rows import ROW_KEYS
 from geoscaler.procedural import demo_mesh
 from geoscaler.protocol import BYTES_PER_TEXEL, Evaluation
 from geoscaler.render.metrics import evaluate, ssim_fg, ssim_full
+from geoscaler.render.renderer import Renderer
 from geoscaler.report.documents import (
     comparison_json,
     comparison_picture,
@@ -230,6 +231,16 @@ def test_cli_json_and_out_folder(glb, tmp_path, capsys):
     assert Image.open(out / "small_compare_x4.png").size[0] == 3 * 256 + 2 * 4
 
 
+def test_cli_scores_a_pbr_asset_lit_and_says_so(tmp_path, capsys):
+    path = tmp_path / "pbr.glb"
+    save_mesh(pbr_demo(), path)
+    argv = ["compare", str(path), "--methods", "bicubic", "--device", "cpu"]
+    assert main(argv, evaluation=ONE_VIEW) == 0
+    assert "protocol 2" in capsys.readouterr().out
+    assert main([*argv, "--protocol", "1", "--json"], evaluation=ONE_VIEW) == 0
+    assert json.loads(capsys.readouterr().out)["protocol"] == 1
+
+
 def test_cli_text_table(glb, capsys):
     argv = ["compare", str(glb), "--methods", "bicubic", "--device", "cpu"]
     assert main(argv, evaluation=ONE_VIEW) == 0
@@ -246,6 +257,7 @@ def test_cli_text_table(glb, capsys):
         (["--methods", "box,box"], "listed twice"),
         (["--steps", "0"], "--steps 0"),
         (["--time-budget", "inf"], "--time-budget inf"),
+        (["--protocol", "3"], "--protocol 3: must be 1"),
     ],
 )
 def test_cli_bad_arguments_exit_2(glb, extra, message, capsys):
@@ -321,3 +333,51 @@ def test_a_learned_method_gets_the_validation_uncached_and_the_whole_budget():
     assert context.time_budget == 30.0  # compare: the budget counts from the method's start
     assert cached == 0  # its views are cached while it trains
     assert set(context.validation.baselines) == {"lanczos", "bicubic"}
+
+
+# ----------------------------------------------------------------------------- protocol 2
+
+
+def pbr_demo():
+    """The demo mesh with a bumpy normal map and a metallic-roughness map of random texels."""
+    mesh = demo_mesh(subdivisions=8, texture_size=64)
+    rng = np.random.default_rng(5)
+    normal = rng.integers(0, 256, (64, 64, 3), dtype=np.uint8)
+    normal[..., 2] = 255
+    packed = rng.integers(0, 256, (64, 64, 3), dtype=np.uint8)
+    mesh.materials[0].maps.update(normalTexture=normal, metallicRoughnessTexture=packed)
+    return mesh
+
+
+def test_a_mesh_with_pbr_maps_is_compared_lit_each_filter_resizing_every_map():
+    from geoscaler.pipeline.shipping import every_map_by
+    from geoscaler.render.cameras import validation_cameras
+    from geoscaler.render.lit import lit_scores
+    from geoscaler.resize.sizes import SizePlan, SizeRule
+
+    mesh = pbr_demo()
+    evaluation = Evaluation.quick(VIEWS, image_size=64)
+    renderer = Renderer(mesh, "cpu", evaluation)
+    comparison = compare_mesh(mesh, [4], ["bicubic", "lanczos"], renderer=renderer)
+    assert comparison.protocol == 2
+    rows = {row["method"]: row for row in comparison.rows}
+    rule = SizeRule(scale=4)
+    lanczos = every_map_by(mesh, SizePlan(rule, rule, rule), "lanczos")
+    assert lanczos.materials[0].maps["normalTexture"].shape == (16, 16, 3)
+    cameras = validation_cameras()
+    (scores,), _ = lit_scores(mesh, [lanczos], [cameras[i] for i in (0, 31)], "cpu", evaluation)
+    mean = float(scores["psnr_fg"].double().mean())  # the row averages in float64
+    assert rows["lanczos"]["psnr_fg"] == pytest.approx(mean, abs=1e-9)
+    assert rows["lanczos"]["views"] == 2
+    assert comparison_json("m.glb", comparison)["protocol"] == 2
+
+
+def test_the_protocol_can_be_asked_and_a_base_colour_mesh_defaults_to_protocol_1(mesh):
+    from geoscaler.render.lit import default_protocol
+
+    assert default_protocol(mesh) == 1 and default_protocol(pbr_demo()) == 2
+    renderer = Renderer(pbr_demo(), "cpu", Evaluation.quick((0,), image_size=32))
+    unlit = compare_mesh(renderer.mesh, [4], ["bicubic"], renderer=renderer, protocol=1)
+    assert unlit.protocol == 1
+    with pytest.raises(GeoscalerError, match="--protocol 3: must be 1"):
+        compare_mesh(renderer.mesh, [4], ["bicubic"], renderer=renderer, protocol=3)

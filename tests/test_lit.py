@@ -157,7 +157,10 @@ def test_the_back_of_a_surface_is_shaded_with_its_frame_turned_round():
     green_up = torch.tensor([[0.5], [0.75], [0.75]])
     normal = shading_normal(geometric, tangent, handedness, behind, green_up)
     b = 1 / math.sqrt(2)
-    torch.testing.assert_close(normal, torch.tensor([[0.0], [-b], [-b]]))
+    torch.testing.assert_close(normal, torch.tensor([[0.0], [-b], [-b]]))  # -(B + N) / sqrt 2
+    red_right = torch.tensor([[0.75], [0.5], [0.75]])
+    normal = shading_normal(geometric, tangent, handedness, behind, red_right)
+    torch.testing.assert_close(normal, torch.tensor([[-b], [0.0], [-b]]))  # -(T + N) / sqrt 2
 
 
 def test_tangents_follow_u_and_their_sign_says_which_way_v_runs():
@@ -265,6 +268,7 @@ def test_scores_of_the_original_itself_are_perfect_and_a_changed_map_scores_lowe
             )
         }
     )
-    same, changed = lit_scores(mesh, [mesh, darker], [HEAD_ON_CAMERA], "cpu")
+    (same, changed), foreground = lit_scores(mesh, [mesh, darker], [HEAD_ON_CAMERA], "cpu")
     assert math.isinf(float(same["psnr_fg"][0]))
     assert float(changed["psnr_fg"][0]) < 40
+    assert foreground.shape == (1,) and foreground[0] > 1000  # the quad fills much of the view

@@ -169,6 +169,20 @@ def check_distances(distances: Sequence[float]) -> list[float]:
     return list(dict.fromkeys(check_distance(d) for d in distances))
 
 
+PROTOCOLS = (1, 2)
+"""The protocols of PROTOCOL.md: 1, the unlit base colour; 2, every map of a material lit."""
+
+
+def check_protocol(protocol: int) -> int:
+    """A protocol of PROTOCOL.md (:data:`PROTOCOLS`)."""
+    if isinstance(protocol, bool) or protocol not in PROTOCOLS:
+        raise GeoscalerError(
+            f"--protocol {protocol!r}: must be 1 (unlit base colour, the paper's) or 2 (every "
+            "map of a material lit)"
+        )
+    return int(protocol)
+
+
 def check_view(view: int) -> int:
     """A protocol view index."""
     if not 0 <= view < VIEWS:

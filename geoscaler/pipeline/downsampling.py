@@ -36,10 +36,8 @@ from geoscaler.pipeline.job import (
 )
 from geoscaler.pipeline.shipping import (
     ShippedMap,
-    relayout_maps,
-    ship_asset,
+    asset_of,
     with_lossless_formats,
-    without_stale_tangents,
 )
 from geoscaler.protocol import Evaluation
 from geoscaler.render.renderer import Renderer
@@ -190,12 +188,7 @@ def export(
     Returns the files written, the main file last, and every texture before and after, with
     the bytes of its image as written.
     """
-    uvs = mesh.uvs if result.uvs is None else result.uvs
-    premade = {}
-    if result.layout is not None:  # every other map follows the new UV layout
-        premade = relayout_maps(mesh, result.layout, plan)
-        mesh = without_stale_tangents(mesh, result.layout)
-    out_mesh, maps = ship_asset(mesh.with_uvs(uvs), plan, result.textures, method, premade)
+    out_mesh, maps = asset_of(mesh, result, plan, method)
     written = save_mesh(out_mesh, output, overwrite=force, image_format=image_format)
     for shipped in maps:
         shipped.bytes_after = image_bytes(out_mesh, shipped.pixels, output, image_format)

@@ -42,16 +42,29 @@ from geoscaler.methods import (
 )
 from geoscaler.optim.events import Controller, ProgressEvent
 from geoscaler.optim.validation import MIN_FROZEN, Validation, validation_view_sets
-from geoscaler.pipeline.arguments import check_distances, check_method, check_rules
-from geoscaler.pipeline.rows import protocol_row, validation_row
-from geoscaler.pipeline.shipping import ShippedMap, alpha_cutoff
+from geoscaler.pipeline.arguments import (
+    check_distances,
+    check_method,
+    check_protocol,
+    check_rules,
+)
+from geoscaler.pipeline.rows import protocol_row, scored_row, validation_row
+from geoscaler.pipeline.shipping import (
+    EVERY_MAP_FILTERS,
+    ShippedMap,
+    alpha_cutoff,
+    asset_of,
+    every_map_by,
+)
 from geoscaler.protocol import GAIN_REFERENCE, REFERENCE_MAX_SIZE, VALIDATION_DISTANCE
 from geoscaler.render.cameras import spread_order, view_set_cameras
+from geoscaler.render.lit import default_protocol, lit_scores
+from geoscaler.render.metrics import mean_metrics
 from geoscaler.render.renderer import Renderer
 from geoscaler.render.views import ViewCache, ViewSet
 from geoscaler.resize.filters import output_sizes
 from geoscaler.resize.maps import resize_alpha
-from geoscaler.resize.sizes import SizeRule
+from geoscaler.resize.sizes import SizePlan, SizeRule
 
 REPORT_BASELINES = ("bicubic", "lanczos")
 """Methods a downsampling job always scores beside its result (bicubic is the gain's zero)."""
@@ -90,6 +103,8 @@ class Comparison:
         foreground: distance -> ``(N,)`` int64 foreground pixels of each view's reference.
         view_indices: the protocol view indices scored (0..59), the same at every distance.
         device: the torch device the views were rendered on.
+        protocol: the protocol of PROTOCOL.md the rows follow (1: unlit base colour; 2: every
+            map lit, each method's asset as it ships).
     """
 
     rows: list[dict[str, Any]]
@@ -97,6 +112,7 @@ class Comparison:
     foreground: dict[float, np.ndarray] = field(default_factory=dict)
     view_indices: list[int] = field(default_factory=list)
     device: str = "cpu"
+    protocol: int = 1
 
 
 def checked_output_sizes(
@@ -169,6 +185,7 @@ class _MethodRuns:
         controller: Controller | None,
         clock: Clock,
         distances: Sequence[float] = (VALIDATION_DISTANCE,),
+        protocol: int = 1,
     ):
         check_geometry(mesh, mesh.source_path or "the mesh")
         self.mesh, self.controller, self.clock = mesh, controller, clock
@@ -180,10 +197,15 @@ class _MethodRuns:
         listed = self.listed
         self.to_run = listed if GAIN_REFERENCE in listed else [*listed, GAIN_REFERENCE]
         self.renderer = renderer or Renderer(mesh, self.options.device)
+        self.protocol = protocol
+        if protocol == 2 and self.renderer.evaluation.reference_max_size is not None:
+            # protocol 2 compares with the maps as the user has them: no reference cap
+            evaluation = replace(self.renderer.evaluation, reference_max_size=None)
+            self.renderer = Renderer(mesh, self.renderer.device, evaluation)
         cap = self.renderer.evaluation.reference_max_size
         self.sizes = {rule.label: checked_output_sizes(mesh, rule, cap) for rule in self.rules}
         self.scales = [rule.label for rule in self.rules]
-        self.comparison = Comparison([], {}, device=str(self.renderer.device))
+        self.comparison = Comparison([], {}, device=str(self.renderer.device), protocol=protocol)
         self.view_sets = validation_view_sets(self.renderer)
         self.observer.views_cached(VALIDATION_DISTANCE, self.view_sets["Q"])
         indices = self.renderer.evaluation.view_indices
@@ -272,6 +294,7 @@ def compare_mesh(
     observer: JobObserver | None = None,
     controller: Controller | None = None,
     clock: Clock = WALL_CLOCK,
+    protocol: int | None = None,
 ) -> Comparison:
     """Run ``methods`` at every scale and score them on all views of the protocol's sets at
     ``distances`` (``compare``, ``bench``).
@@ -295,6 +318,9 @@ def compare_mesh(
         observer: watches the job.
         controller: pauses or stops the learned methods (their best state so far is kept).
         clock: where the job and its methods read the time.
+        protocol: 1 (unlit base colour) or 2 (every map lit: each method's asset as it ships,
+            the filters' every map by that filter; references uncapped); None: the mesh's
+            default (:func:`geoscaler.render.lit.default_protocol`).
 
     Returns:
         A :class:`Comparison`; its rows are ordered by distance, scale, then ``methods``.
@@ -303,12 +329,16 @@ def compare_mesh(
         GeoscalerError: an unknown method, a bad scale or distance, a scale too large for a
             texture, or a method's own error.
     """
+    protocol = default_protocol(mesh) if protocol is None else check_protocol(protocol)
     runs = _MethodRuns(
-        mesh, scales, methods, options, renderer, observer, controller, clock, distances
+        mesh, scales, methods, options, renderer, observer, controller, clock, distances, protocol
     )
     for rule in runs.rules:
         runs.run_scale(rule, scorings_after=0, budget=None)
-    _score_protocol_sets(runs)
+    if protocol == 2:
+        _score_lit_sets(runs)
+    else:
+        _score_protocol_sets(runs)
     return runs.finish()
 
 
@@ -435,6 +465,44 @@ def _score_protocol_sets(runs: _MethodRuns) -> None:
                 row = protocol_row(output, name, scale, distance, cache)
                 runs.scores[distance, name, scale] = row
                 observer.scored(row)
+
+
+def _score_lit_sets(runs: _MethodRuns) -> None:
+    """Protocol 2: every method's asset as it ships (the filters' with every map by that
+    filter, :func:`geoscaler.pipeline.shipping.every_map_by`) scored lit on all views of the
+    protocol's sets at the job's distances."""
+    evaluation, observer = runs.renderer.evaluation, runs.observer
+    for distance in runs.distances:
+        cameras = view_set_cameras(distance, evaluation)
+        cameras = [cameras[i] for i in spread_order(len(cameras))]
+        for rule in runs.rules:
+            scale, plan = rule.label, SizePlan(rule, rule, rule)
+            outputs = [runs.comparison.outputs[name, scale] for name in runs.to_run]
+            assets = [
+                lit_asset(runs.mesh, name, output, plan)
+                for name, output in zip(runs.to_run, outputs, strict=True)
+            ]
+            what = f"lit views x{scale} at {distance:g}"
+            scores, foreground = lit_scores(
+                runs.mesh, assets, cameras, runs.renderer.device, evaluation,
+                lambda done, total, what=what: observer.stage(what, done, total),
+            )  # fmt: skip
+            runs.comparison.foreground[distance] = foreground
+            for name, output, per_view in zip(runs.to_run, outputs, scores, strict=True):
+                runs.progress.step(f"scored {name} x{scale} at {distance:g}")
+                metrics = mean_metrics(per_view)
+                row = scored_row(output, name, scale, distance, metrics, len(cameras))
+                runs.scores[distance, name, scale] = row
+                observer.scored(row)
+
+
+def lit_asset(mesh: TexturedMesh, name: str, result: MethodResult, plan: SizePlan) -> TexturedMesh:
+    """The asset protocol 2 scores for method ``name``: box, bicubic and Lanczos in the mesh's
+    own layout resize every map (the protocol's baselines); any other method ships its base
+    colours (and UVs) with every other map by its class."""
+    if name in EVERY_MAP_FILTERS and result.uvs is None:
+        return every_map_by(mesh, plan, name)
+    return asset_of(mesh, result, plan, name)[0]
 
 
 def no_worse_than_filters(

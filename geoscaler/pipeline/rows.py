@@ -48,12 +48,24 @@ def protocol_row(
 ) -> dict[str, Any]:
     """A row without its gain: the output scored on all views of a cached view set."""
     metrics = mean_metrics(cache.score(result.textures, result.uvs))
+    return scored_row(result, name, scale, distance, metrics, len(cache))
+
+
+def scored_row(
+    result: MethodResult,
+    name: str,
+    scale: int,
+    distance: float,
+    metrics: dict[str, float],
+    views: int,
+) -> dict[str, Any]:
+    """A row without its gain, of mean ``metrics`` measured on ``views`` views."""
     size, nbytes = texture_facts(result.textures)
     return {
         "method": name,
         "scale": scale,
         "distance": distance,
-        "views": len(cache),
+        "views": views,
         "texture_size": size,
         "texture_bytes": nbytes,
         **{key: metrics[key] for key in METRIC_NAMES},

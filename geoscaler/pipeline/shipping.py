@@ -14,10 +14,13 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+from PIL import Image
 
 from geoscaler.io.slots import slot_info
 from geoscaler.mesh import Material, SourceImage, TexturedMesh
+from geoscaler.methods import MethodResult
 from geoscaler.protocol import BYTES_PER_TEXEL
+from geoscaler.resize.filters import resize_channels
 from geoscaler.resize.maps import (
     METHOD_NAMES,
     normal_shortening,
@@ -208,6 +211,43 @@ def with_toksvig_roughness(original: TexturedMesh, shipped: TexturedMesh) -> Tex
         factor = float(after.properties.get("pbrMetallicRoughness", {}).get("roughnessFactor", 1))
         replacements[id(packed)] = toksvig_roughness(packed, shortening, factor)
     return shipped.with_images(replacements)
+
+
+def asset_of(
+    mesh: TexturedMesh, result: MethodResult, plan: SizePlan, method: str
+) -> tuple[TexturedMesh, list[ShippedMap]]:
+    """The asset as it ships for a method's result: its base colours and UVs (in a new
+    layout every other map re-baked into it, :func:`relayout_maps`), every other map at its
+    class's size (:func:`ship_asset`)."""
+    uvs = mesh.uvs if result.uvs is None else result.uvs
+    premade = {}
+    if result.layout is not None:
+        premade = relayout_maps(mesh, result.layout, plan)
+        mesh = without_stale_tangents(mesh, result.layout)
+    return ship_asset(mesh.with_uvs(uvs), plan, result.textures, method, premade)
+
+
+EVERY_MAP_FILTERS = {
+    "box": Image.Resampling.BOX,
+    "bicubic": Image.Resampling.BICUBIC,
+    "lanczos": Image.Resampling.LANCZOS,
+}
+"""Protocol 2's baselines: every map of every material resized by one Pillow filter."""
+
+
+def every_map_by(mesh: TexturedMesh, plan: SizePlan, name: str) -> TexturedMesh:
+    """``mesh`` with every map of every material resized by the Pillow filter ``name``
+    (:data:`EVERY_MAP_FILTERS`) on its stored 8-bit values, channels apart, to its class's
+    size, as ``gltf-transform resize`` and image editors do (protocol 2's baselines)."""
+    resample = EVERY_MAP_FILTERS[name]
+    replacements = {}
+    for pixels, places in mesh.images():
+        material, slot = places[0]
+        kind = COLOR if slot == BASE_COLOR else texture_class(slot)
+        size = plan.rule(kind).size(*pixels.shape[:2])
+        if size != pixels.shape[:2]:
+            replacements[id(pixels)] = resize_channels(pixels, size, resample)
+    return mesh.with_images(replacements)
 
 
 def without_stale_tangents(mesh: TexturedMesh, atlas: Atlas) -> TexturedMesh:

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -168,14 +168,14 @@ def shading_normal(
     """
     normal = _unit(geometric)
     facing = torch.where(_dot(normal, view) < 0, -1.0, 1.0).to(normal.dtype)
-    normal = normal * facing
     if texel is None:
-        return normal
-    tangent = _unit(tangent - normal * _dot(normal, tangent))  # sign follows Ng's
+        return normal * facing
+    tangent = _unit(tangent - normal * _dot(normal, tangent))
     sign = torch.where(handedness < 0, -1.0, 1.0).to(normal.dtype)
     bitangent = torch.linalg.cross(normal, tangent, dim=0) * sign
     vector = 2 * texel - 1
-    return _unit(vector[0] * scale * tangent + vector[1] * scale * bitangent + vector[2] * normal)
+    mapped = vector[0] * scale * tangent + vector[1] * scale * bitangent + vector[2] * normal
+    return _unit(mapped) * facing  # the whole frame turned round where its back is seen
 
 
 def vertex_tangents(
@@ -467,44 +467,62 @@ def _material_surface(view: LitView, material: LitMaterial, hit: torch.Tensor | 
     return Surface(base, metallic, roughness, occlusion, emissive, normal)
 
 
+def default_protocol(mesh: TexturedMesh) -> int:
+    """The protocol a mesh is scored under unless asked: 2 (lit) where a glTF material has a
+    normal or metallic-roughness map, whose detail only light shows; 1 (unlit base colour)
+    otherwise (OBJ materials have neither under protocol 2)."""
+    lit = any(
+        NORMAL in m.maps or METALLIC_ROUGHNESS in m.maps
+        for m in mesh.materials
+        if "mtl" not in m.properties
+    )
+    return 2 if lit else 1
+
+
 def lit_scores(
     original: TexturedMesh,
     candidates: Sequence[TexturedMesh],
     cameras: Sequence[Camera],
     device: torch.device | str | None = None,
+    evaluation: Evaluation | None = None,
     progress: Callable[[int, int], None] | None = None,
-) -> list[dict[str, torch.Tensor]]:
+) -> tuple[list[dict[str, torch.Tensor]], np.ndarray]:
     """Protocol 2 metrics of every candidate against the original, per camera.
 
-    References are the original's maps at full resolution. A candidate whose positions,
-    faces and UVs are the original's very arrays (maps replaced only) is rendered on the
-    original's G-buffers and frames; any other is rasterised on its own.
+    References are the original's maps at full resolution (``evaluation``'s image size and
+    supersampling, default protocol 1's, its reference cap ignored). A candidate whose
+    positions, faces and UVs are the original's very arrays (maps replaced only) is rendered
+    on the original's G-buffers and frames; any other is rasterised on its own.
 
     Returns:
-        Per candidate ``{"psnr_fg", "psnr_full", "ssim_full", "ssim_fg"}`` -> ``(len(cameras),)``.
+        Per candidate ``{"psnr_fg", "psnr_full", "ssim_full", "ssim_fg"}`` -> ``(len(cameras),)``,
+        and ``(len(cameras),)`` int64 foreground pixels of each view.
     """
-    renderer = Renderer(original, device, Evaluation(reference_max_size=None))
+    evaluation = replace(evaluation or Evaluation(), reference_max_size=None)
+    renderer = Renderer(original, device, evaluation)
     scene = LitScene(renderer)
     reference = lit_materials(original, renderer.device)
-    scenes = [scene if _same_geometry(original, c) else None for c in candidates]
     scenes = [
-        s or LitScene(Renderer(c, device, renderer.evaluation))
-        for s, c in zip(scenes, candidates, strict=True)
+        scene if _same_geometry(original, c) else LitScene(Renderer(c, device, evaluation))
+        for c in candidates
     ]
     materials = [lit_materials(c, renderer.device) for c in candidates]
     per_view: list[list[dict[str, torch.Tensor]]] = [[] for _ in candidates]
+    foreground_pixels = []
     with torch.no_grad():
         for index, camera in enumerate(cameras):
             view = scene.view(camera)
             reference_image = scene.render(view, reference)[None]
             foreground = renderer.foreground(view.gbuffer)[None]
+            foreground_pixels.append(int(foreground.sum()))
             for k, (own, maps) in enumerate(zip(scenes, materials, strict=True)):
                 own_view = view if own is scene else own.view(camera)
                 image = own.render(own_view, maps)[None]
                 per_view[k].append(evaluate(image, reference_image, foreground))
             if progress:
                 progress(index + 1, len(cameras))
-    return [{m: torch.cat([v[m] for v in views]) for m in views[0]} for views in per_view]
+    scores = [{m: torch.cat([v[m] for v in views]) for m in views[0]} for views in per_view]
+    return scores, np.asarray(foreground_pixels, np.int64)
 
 
 def _same_geometry(original: TexturedMesh, candidate: TexturedMesh) -> bool:

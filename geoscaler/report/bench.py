@@ -27,6 +27,7 @@ from geoscaler.methods import MethodOptions
 from geoscaler.pipeline.arguments import (
     check_distances,
     check_method,
+    check_protocol,
     check_scales,
     comparison_settings,
 )
@@ -34,7 +35,6 @@ from geoscaler.pipeline.job import JobObserver, compare_mesh, prepare_out_dir
 from geoscaler.pipeline.rows import ROW_KEYS
 from geoscaler.protocol import (
     BYTES_PER_TEXEL,
-    PROTOCOL,
     PROTOCOL_EVALUATION,
     VALIDATION_DISTANCE,
     Evaluation,
@@ -79,6 +79,7 @@ class BenchResult:
         failed: ``(path, message)`` of each mesh that was skipped.
         device: the torch device of the renders (e.g. ``"cpu"``).
         seconds: wall time of the whole run.
+        protocol: the protocol every row follows (PROTOCOL.md: 1 or 2).
     """
 
     rows: list[dict[str, Any]] = field(default_factory=list)
@@ -86,6 +87,7 @@ class BenchResult:
     failed: list[tuple[str, str]] = field(default_factory=list)
     device: str = "cpu"
     seconds: float = 0.0
+    protocol: int = 1
 
 
 def _search_folder(root: Path) -> list[MeshEntry]:
@@ -133,16 +135,19 @@ def bench_meshes(
     progress: bool = True,
     report: Callable[[str], None] | None = None,
     clock: Clock = WALL_CLOCK,
+    protocol: int = 1,
 ) -> BenchResult:
     """Compare ``methods`` on every mesh; a mesh that fails is reported and skipped.
 
     Args:
         meshes: from :func:`find_meshes`.
         scales, methods, distances, options: as :func:`geoscaler.pipeline.job.compare_mesh`.
-        evaluation: image size and views of every mesh's renders (default: protocol 1).
+        evaluation: image size and views of every mesh's renders (default: protocol 1's).
         progress: show a tqdm bar on stderr.
         report: receives one line per skipped mesh (default: printed above the bar).
         clock: where the time is read.
+        protocol: the protocol every mesh is scored under (one for all, so that means
+            average like with like).
 
     Returns:
         A :class:`BenchResult` (possibly with no rows if every mesh failed).
@@ -152,7 +157,7 @@ def bench_meshes(
     scales, distances = check_scales(scales), check_distances(distances)
     methods = [check_method(name) for name in methods]
     options = options or MethodOptions()
-    result = BenchResult()
+    result = BenchResult(protocol=check_protocol(protocol))
     start = clock.now()
     with tqdm(meshes, desc="bench", unit="mesh", disable=not progress) as bar:
         say = report or (lambda line: bar.write(line, file=sys.stderr))
@@ -168,6 +173,7 @@ def bench_meshes(
                     Renderer(mesh, options.device, evaluation),
                     _MeshPostfix(bar, entry.name),
                     clock=clock,
+                    protocol=result.protocol,
                 )
             except (KeyboardInterrupt, MemoryError):
                 raise
@@ -312,7 +318,7 @@ def markdown_report(result: BenchResult, command_line: str, device: str) -> str:
     lines = [
         f"`{command_line}`",
         "",
-        f"protocol: {PROTOCOL}  ",
+        f"protocol: {result.protocol}  ",
         f"device: {device}  ",
         f"meshes: {len(result.meshes)} evaluated, {len(result.failed)} skipped; "
         f"{plural(views, 'view')} per set; wall time {result.seconds:.0f} s",
@@ -359,7 +365,7 @@ def results_document(result: BenchResult, command_line: str, device: str) -> dic
     """``results.json`` (and ``--json``): strict JSON, infinities written as null."""
     return json_safe(
         {
-            "protocol": PROTOCOL,
+            "protocol": result.protocol,
             "command": command_line,
             "device": device,
             "seconds": result.seconds,
@@ -389,7 +395,7 @@ def tradeoff_picture(result: BenchResult, distance: float) -> np.ndarray:
     return tradeoff_plot(
         series,
         title=f"Quality against texture memory: mean over {plural(len(result.meshes), 'mesh')}, "
-        f"distance {distance:g}, protocol {PROTOCOL}",
+        f"distance {distance:g}, protocol {result.protocol}",
         x_label="texture memory per mesh, mean (uncompressed RGBA8, 4 bytes/texel, no mips)",
         y_label="PSNR-fg (dB)",
     )
@@ -405,12 +411,15 @@ def command_line(args: Any) -> str:
             parts += [f"--{flag}", getattr(args, flag)]
     if list(args.distance) != [VALIDATION_DISTANCE]:
         parts += ["--distance", *(f"{d:g}" for d in args.distance)]
-    if args.device != "auto":
-        parts += ["--device", args.device]
-    if args.seed != 0:
-        parts += ["--seed", str(args.seed)]
-    if args.steps is not None:
-        parts += ["--steps", str(args.steps)]
+    optional = {
+        "protocol": (getattr(args, "protocol", None), (None, 1)),
+        "device": (args.device, ("auto",)),
+        "seed": (args.seed, (0,)),
+        "steps": (args.steps, (None,)),
+    }
+    for flag, (value, defaults) in optional.items():
+        if value not in defaults:
+            parts += [f"--{flag}", str(value)]
     if args.time_budget is not None:
         parts += ["--time-budget", f"{args.time_budget:g}"]
     if args.out:
@@ -427,7 +436,10 @@ def command(args: Any) -> None:
     names = [*OUTPUT_FILES, *(plot_name(d, distances) for d in distances)]
     if args.out:
         prepare_out_dir(args.out, names, args.force, [m.path for m in meshes])
-    result = bench_meshes(meshes, scales, methods, distances, options, args.evaluation)
+    protocol = 1 if args.protocol is None else check_protocol(args.protocol)
+    result = bench_meshes(
+        meshes, scales, methods, distances, options, args.evaluation, protocol=protocol
+    )
     if not result.rows:
         raise GeoscalerError(f"none of the {len(meshes)} meshes could be evaluated (reasons above)")
     line = command_line(args)
@@ -456,7 +468,7 @@ def _print_tables(result: BenchResult, device: str) -> None:
     """The console report: paper-style means, then per-mesh PSNR-fg, per distance."""
     summary = summarize(result.rows)
     print(
-        f"protocol {PROTOCOL}   device {device}   {plural(len(result.meshes), 'mesh')} "
+        f"protocol {result.protocol}   device {device}   {plural(len(result.meshes), 'mesh')} "
         f"({len(result.failed)} skipped)   {result.seconds:.0f} s"
     )
     for distance in dict.fromkeys(r["distance"] for r in result.rows):

@@ -51,7 +51,7 @@ def comparison_json(mesh_path: str | Path, comparison: Comparison) -> dict[str, 
     """
     return json_safe(
         {
-            "protocol": PROTOCOL,
+            "protocol": comparison.protocol,
             "mesh": str(mesh_path),
             "device": comparison.device,
             "results": comparison.rows,
