@@ -24,8 +24,22 @@ import torch
 from geoscaler.color import linear_to_srgb, texture_to_linear, to_rgb
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import TexturedMesh
-from geoscaler.protocol import IMAGE_SIZE, SUPERSAMPLE
+from geoscaler.protocol import (
+    AMBIENT_RADIANCE,
+    IMAGE_SIZE,
+    MIN_PERCEPTUAL_ROUGHNESS,
+    SUPERSAMPLE,
+)
 from geoscaler.render.cameras import Camera
+from geoscaler.render.lit import (
+    LIT_SLOTS,
+    SRGB_SLOTS,
+    camera_lights,
+    decoded_map,
+    lit_factors,
+    lit_maps,
+    vertex_tangents,
+)
 from geoscaler.render.texture import build_mip_chain
 from geoscaler.resize.filters import reference_textures
 
@@ -138,6 +152,31 @@ def upload_texture(ctx: moderngl.Context, chain: list[np.ndarray]) -> moderngl.T
     gl_texture.build_mipmaps(0, len(chain) - 1)  # allocates every level
     for index, level in enumerate(chain):
         gl_texture.write(np.ascontiguousarray(level[::-1]).tobytes(), level=index, alignment=1)
+    gl_texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+    gl_texture.repeat_x = gl_texture.repeat_y = True
+    return gl_texture
+
+
+def linear_mip_chain(values: torch.Tensor) -> list[np.ndarray]:
+    """The protocol's mip chain of ``(H, W, 3)`` linear values (a data or normal map as
+    :func:`geoscaler.render.lit.decoded_map` reads it), each level ``(H_l, W_l, 4)`` float32
+    (alpha 1): kept in float, as the torch sampler keeps them."""
+    with torch.no_grad():
+        levels = build_mip_chain(values)
+    return [
+        np.ascontiguousarray(torch.nn.functional.pad(level, (0, 1), value=1.0).numpy())
+        for level in levels
+    ]
+
+
+def upload_float_texture(ctx: moderngl.Context, chain: list[np.ndarray]) -> moderngl.Texture:
+    """An RGBA float texture with the mip chain of :func:`linear_mip_chain`, repeat addressing,
+    trilinear filtering (rows flipped as in :func:`upload_texture`)."""
+    height, width = chain[0].shape[:2]
+    gl_texture = ctx.texture((width, height), 4, dtype="f4")
+    gl_texture.build_mipmaps(0, len(chain) - 1)
+    for index, level in enumerate(chain):
+        gl_texture.write(np.ascontiguousarray(level[::-1]).tobytes(), level=index)
     gl_texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
     gl_texture.repeat_x = gl_texture.repeat_y = True
     return gl_texture
@@ -267,6 +306,68 @@ class Surface:
         self.uv_buffer.release()
 
 
+def _upload_map(
+    ctx: moderngl.Context, pixels: np.ndarray, slot: str
+) -> tuple[moderngl.Texture, int]:
+    """A lit map on the GPU and its count of mip levels: sRGB colour as ``GL_SRGB8_ALPHA8``,
+    data and normals as float values."""
+    if slot in SRGB_SLOTS:
+        chain = srgb_mip_chain(pixels)
+        return upload_texture(ctx, chain), len(chain)
+    chain = linear_mip_chain(decoded_map(pixels, slot, "cpu"))
+    return upload_float_texture(ctx, chain), len(chain)
+
+
+class LitSurface:
+    """A lit look of a mesh (PROTOCOL.md, protocol 2): every map of every material that the
+    lit render reads, and the corners' normals, tangents and UVs.
+
+    Args:
+        renderer: the renderer of the mesh's geometry (its context, positions, face order).
+        mesh: the asset to show, the renderer's mesh with other maps or UVs (default: the
+            renderer's own); its positions and faces must be the renderer's.
+    """
+
+    def __init__(self, renderer: GLRenderer, mesh: TexturedMesh | None = None):
+        mesh = renderer.mesh if mesh is None else mesh
+        if len(mesh.faces) != len(renderer.mesh.faces):
+            raise GeoscalerError("a lit surface needs the renderer's own faces")
+        ctx, order = renderer.ctx, renderer.face_order
+        uploaded: dict[tuple[int, bool], tuple[moderngl.Texture, int]] = {}
+        self.materials: list[tuple[dict[str, tuple[moderngl.Texture, int]], dict]] = []
+        for material in mesh.materials:
+            maps = {}
+            for slot, pixels in lit_maps(material).items():
+                key = (id(pixels), slot in SRGB_SLOTS)
+                if key not in uploaded:
+                    uploaded[key] = _upload_map(ctx, pixels, slot)
+                maps[slot] = uploaded[key]
+            self.materials.append((maps, lit_factors(material)))
+        self.textures = [texture for texture, _ in uploaded.values()]
+        tangents = mesh.attributes.get("TANGENT")
+        if tangents is None:
+            tangents = vertex_tangents(mesh.positions, mesh.faces, mesh.uvs, mesh.normals)
+        faces = mesh.faces[order]
+        self.buffers = [
+            ctx.buffer(np.ascontiguousarray(values[faces].reshape(-1, width), np.float32).tobytes())
+            for values, width in ((mesh.normals, 3), (tangents, 4), (mesh.uvs, 2))
+        ]
+        normals, tangent_buffer, uvs = self.buffers
+        self.vao = ctx.vertex_array(
+            renderer.lit_program,
+            [
+                (renderer.positions, "3f", "position"),
+                (normals, "3f", "normal"),
+                (tangent_buffer, "4f", "tangent"),
+                (uvs, "2f", "uv"),
+            ],
+        )
+
+    def release(self) -> None:
+        for thing in (*self.textures, *self.buffers, self.vao):
+            thing.release()
+
+
 class GLRenderer:
     """Renders one mesh, normalised per the protocol, from protocol cameras.
 
@@ -291,6 +392,7 @@ class GLRenderer:
         self.mesh_programs = {
             views: program(ctx, "mesh.vert", "mesh.frag", {"VIEWS": views}) for views in (1, 2)
         }
+        self.lit_program = program(ctx, "lit.vert", "lit.frag")
         self.resolve_program = program(ctx, "fullscreen.vert", "resolve.frag")
         self.empty_vao = ctx.vertex_array(self.resolve_program, [])
         self.face_order = np.argsort(mesh.face_material, kind="stable")
@@ -402,6 +504,62 @@ class GLRenderer:
             set_array(prog, "max_level", [float(s.levels[index] - 1) for s in surfaces])
             vao.render(moderngl.TRIANGLES, vertices=count, first=first)
         ctx.disable(moderngl.DEPTH_TEST)
+
+    def render_lit(
+        self,
+        camera: Camera,
+        surface: LitSurface,
+        target: Target,
+        pan: tuple[float, float] = (0.0, 0.0),
+    ) -> Target:
+        """Draw ``surface`` lit (protocol 2) from ``camera`` into ``target``."""
+        ctx, prog = self.ctx, self.lit_program
+        fbo = target.draw_fbo
+        widen = np.diag([*view_scale(*fbo.size), 1.0, 1.0])
+        clip = pan_matrix(pan) @ widen @ camera.clip_matrix()
+        fbo.use()
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        ctx.depth_func = "<"
+        prog["clip_from_world"].write(clip.T.astype(np.float32).tobytes())
+        self._set_lights(camera)
+        for (first, count), (maps, factors) in zip(self.ranges, surface.materials, strict=True):
+            if count == 0:
+                continue
+            for unit, slot in enumerate(LIT_SLOTS):
+                if slot in maps:
+                    maps[slot][0].use(unit)
+            set_array(prog, "maps", list(range(len(LIT_SLOTS))))
+            set_array(prog, "has_map", [slot in maps for slot in LIT_SLOTS])
+            levels = [float(maps[slot][1] - 1) if slot in maps else 0.0 for slot in LIT_SLOTS]
+            set_array(prog, "max_level", levels)
+            for name, value in factors.items():
+                if name in prog:
+                    prog[name].value = value
+            surface.vao.render(moderngl.TRIANGLES, vertices=count, first=first)
+        ctx.disable(moderngl.DEPTH_TEST)
+        self._resolve(target)
+        return target
+
+    def _set_lights(self, camera: Camera) -> None:
+        prog = self.lit_program
+        lights = camera_lights(camera)
+        prog["eye"] = tuple(float(x) for x in camera.eye)
+        set_array(prog, "light_direction", [light.direction for light in lights])
+        set_array(prog, "light_irradiance", [light.irradiance for light in lights])
+        prog["ambient"] = AMBIENT_RADIANCE
+        prog["min_roughness"] = MIN_PERCEPTUAL_ROUGHNESS
+
+    def render_lit_image(
+        self, camera: Camera, surface: LitSurface
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`render_image` of a lit surface."""
+        target = self.target()
+        try:
+            return self.render_lit(camera, surface, target).read()
+        finally:
+            target.release()
 
     def _resolve(self, target: Target) -> None:
         """Box-average ``target``'s supersamples into its ``image`` and ``covered``."""

@@ -124,3 +124,66 @@ def test_a_pair_drawn_in_one_pass_is_two_single_renders(ctx):
         assert not np.array_equal(singles[0][0], singles[1][0])  # two different pictures
         assert pair.targets[0].size == (64 if preview else 128)
         pair.release()
+
+
+# ----------------------------------------------------------------------------- protocol 2, lit
+
+
+def lit_agreement(ctx, mesh, camera: Camera) -> float:
+    """PSNR-fg of the GL lit image against the torch lit image of one view."""
+    from geoscaler.protocol import Evaluation
+    from geoscaler.render.lit import LitScene, lit_materials
+
+    gl_renderer = import_app_module("gl_renderer")
+    gl = gl_renderer.GLRenderer(ctx, mesh)
+    surface = gl_renderer.LitSurface(gl)
+    image, foreground = gl.render_lit_image(camera, surface)
+    surface.release()
+    scene = LitScene(Renderer(mesh, "cpu", Evaluation(reference_max_size=None)))
+    view = scene.view(camera)
+    reference = scene.render(view, lit_materials(mesh, "cpu"))
+    torch_foreground = scene.renderer.foreground(view.gbuffer)
+    assert (torch.from_numpy(foreground) != torch_foreground).float().mean() < 1e-4
+    assert torch_foreground.any()
+    image = torch.from_numpy(image).float() / 255
+    return float(psnr_fg(image[None], reference[None], torch_foreground[None]))
+
+
+def pbr_mesh_params():
+    return [p for p in mesh_params() if p.values[0] is None or p.id.startswith("ph_")]
+
+
+@pytest.mark.parametrize("path", pbr_mesh_params())
+def test_gl_lit_matches_torch_lit_on_the_pbr_development_meshes(ctx, path):
+    mesh = load_mesh(path)
+    for distance in (1.5, 4.0):
+        assert lit_agreement(ctx, mesh, validation_cameras(distance)[7]) >= AGREEMENT_DB
+
+
+def test_gl_lit_matches_torch_lit_with_a_bumpy_normal_map_and_its_scale(ctx):
+    mesh = demo_mesh(subdivisions=16, texture_size=128)
+    rng = np.random.default_rng(4)
+    normal = rng.integers(60, 196, (128, 128, 3), dtype=np.uint8)
+    normal[..., 2] = 230
+    packed = rng.integers(0, 256, (128, 128, 3), dtype=np.uint8)
+    mesh.materials[0].maps.update(normalTexture=normal, metallicRoughnessTexture=packed)
+    mesh.materials[0].properties["normalTexture"] = {"scale": 0.7}
+    for view in (3, 40):
+        assert lit_agreement(ctx, mesh, validation_cameras()[view]) >= AGREEMENT_DB
+
+
+def test_gl_lit_matches_torch_lit_on_the_back_of_a_normal_mapped_quad(ctx):
+    from dataclasses import replace
+
+    from geoscaler.mesh import Material
+    from tests.mesh_support import quad_mesh
+
+    rng = np.random.default_rng(6)
+    normal = rng.integers(40, 216, (32, 32, 3), dtype=np.uint8)
+    normal[..., 2] = 220
+    base = rng.integers(0, 256, (32, 32, 3), dtype=np.uint8)
+    material = Material("quad", base, maps={"normalTexture": normal})
+    mesh = replace(quad_mesh(base), materials=[material])
+    for direction in ((0.0, 0.3, 0.95), (0.0, 0.3, -0.95)):  # front, then back
+        camera = Camera(tuple(np.asarray(direction) / np.linalg.norm(direction)), 2.4)
+        assert lit_agreement(ctx, mesh, camera) >= AGREEMENT_DB

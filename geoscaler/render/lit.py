@@ -226,26 +226,27 @@ OCCLUSION = "occlusionTexture"
 EMISSIVE = "emissiveTexture"
 LIT_SLOTS = (BASE_COLOR, METALLIC_ROUGHNESS, NORMAL, OCCLUSION, EMISSIVE)
 """The maps protocol 2 reads; every other slot of a material is ignored by the lit render."""
-_SRGB_SLOTS = (BASE_COLOR, EMISSIVE)
+SRGB_SLOTS = (BASE_COLOR, EMISSIVE)
+"""The lit slots whose texels are sRGB-encoded colour; the others hold linear values."""
 
 
-def _decoding(slot: str, channels: int) -> Decoding:
+def map_decoding(slot: str, channels: int) -> Decoding:
     """How a slot's 8-bit texels become the three values the lit render reads: linear RGB of
     sRGB colour maps, the codes / 255 of data and normal maps (a grey map's one channel
     repeated; alpha never read)."""
-    if slot in _SRGB_SLOTS:
+    if slot in SRGB_SLOTS:
         return srgb_decoding(channels)
     return [(c if channels >= 3 else 0, _LINEAR) for c in range(3)]
 
 
 def decoded_map(pixels: np.ndarray, slot: str, device: torch.device | str) -> torch.Tensor:
     """``(H, W, 3)`` float32 values of an 8-bit map of ``slot`` as the lit render reads them
-    (:func:`_decoding`): what a differentiable candidate starts from."""
-    codes = torch.from_numpy(np.ascontiguousarray(pixels)).to(device).long()
+    (:func:`map_decoding`): what a differentiable candidate starts from."""
+    codes = torch.from_numpy(np.asarray(pixels, dtype=np.int64)).to(device)
     codes = codes if codes.dim() == 3 else codes[..., None]
     planes = [
         torch.from_numpy(table).to(device)[codes[..., source]]
-        for source, table in _decoding(slot, codes.shape[2])
+        for source, table in map_decoding(slot, codes.shape[2])
     ]
     return torch.stack(planes, dim=-1)
 
@@ -272,7 +273,7 @@ class LitMaterial:
     emissive: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
-def _factors(material: Material) -> dict:
+def lit_factors(material: Material) -> dict:
     """The protocol's factors of a material (an MTL material: metallic 0, roughness 1)."""
     properties = material.properties
     pbr = properties.get("pbrMetallicRoughness", {})
@@ -290,7 +291,7 @@ def _factors(material: Material) -> dict:
     }
 
 
-def _lit_maps(material: Material) -> dict[str, np.ndarray]:
+def lit_maps(material: Material) -> dict[str, np.ndarray]:
     """The material's maps protocol 2 reads, by slot; refused where one is not on the UV set
     the mesh's UVs hold (another ``texCoord``, or a texture transform the base colour has not)."""
     maps = {slot: pixels for slot, pixels in material.textures().items() if slot in LIT_SLOTS}
@@ -325,17 +326,17 @@ def lit_materials(
     materials = []
     for material in mesh.materials:
         maps: dict[str, MipTexture | None] = {}
-        for slot, pixels in _lit_maps(material).items():
-            key = (id(pixels), "srgb" if slot in _SRGB_SLOTS else "linear")
+        for slot, pixels in lit_maps(material).items():
+            key = (id(pixels), "srgb" if slot in SRGB_SLOTS else "linear")
             if key not in chains:
                 channels = 1 if pixels.ndim == 2 else pixels.shape[2]
                 chains[key] = (
-                    EncodedMipTexture(pixels, device, _decoding(slot, channels))
+                    EncodedMipTexture(pixels, device, map_decoding(slot, channels))
                     if encoded
                     else MipTexture(decoded_map(pixels, slot, device))
                 )
             maps[slot] = chains[key]
-        materials.append(LitMaterial(maps, **_factors(material)))
+        materials.append(LitMaterial(maps, **lit_factors(material)))
     return materials
 
 
