@@ -2,6 +2,8 @@
 
 The *original* look is the protocol's reference texture; the *candidate* look starts as bicubic
 at the chosen scale (what artists do today) and is replaced live by the optimiser's textures.
+Lit (protocol 2), the original shows every map at full resolution and the candidate the asset
+as it ships: its base colour with every other map resized by its class.
 """
 
 from __future__ import annotations
@@ -12,11 +14,13 @@ import moderngl
 import numpy as np
 
 from geoscaler.mesh import TexturedMesh
+from geoscaler.pipeline.shipping import ship_asset
 from geoscaler.protocol import IMAGE_SIZE
 from geoscaler.resize.filters import bicubic, reference_textures
+from geoscaler.resize.sizes import SizePlan, SizeRule
 
 from .bookmarks import Bookmarks
-from .gl_renderer import GLRenderer, Surface
+from .gl_renderer import GLRenderer, LitSurface, Surface
 
 DEMO_NAME = "geoscaler_demo"
 POINTS = 50_000
@@ -55,6 +59,9 @@ class Session:
         self.candidate_uvs: np.ndarray | None = None
         self.candidate: Surface | None = None
         self.candidate_label = ""
+        self.lit_original: LitSurface | None = None
+        self.lit_candidate: LitSurface | None = None
+        self._other_maps: dict[int, TexturedMesh] = {}  # scale -> the mesh, maps resized
         self.targets = self.renderer.target_pair()  # (original, candidate)
         self.previews = self.renderer.target_pair(preview=True)
         positions = mesh.normalized_positions()
@@ -98,10 +105,45 @@ class Session:
         surface = Surface(self.renderer, textures, uvs, chains)
         if self.candidate is not None:
             self.candidate.release()
+        if self.lit_candidate is not None:
+            self.lit_candidate.release()
+            self.lit_candidate = None
         self.candidate, self.candidate_textures = surface, textures
         self.candidate_uvs, self.candidate_label = uvs, label
 
+    def lit_surfaces(self) -> tuple[LitSurface, LitSurface | None]:
+        """``(original, candidate)`` lit, made when first asked; the candidate is None where it
+        has UVs of its own (its other maps would need re-baking into them: it is drawn unlit)."""
+        if self.lit_original is None:
+            self.lit_original = LitSurface(self.renderer)
+        if self.lit_candidate is None and self.candidate_uvs is None:
+            self.lit_candidate = LitSurface(self.renderer, self.candidate_asset())
+        return self.lit_original, self.lit_candidate
+
+    def candidate_asset(self) -> TexturedMesh:
+        """The mesh as the candidate would ship: its base colours, every other map resized by
+        its class at the candidate's scale (resized once per scale)."""
+        scale = self.candidate_scale()
+        if scale not in self._other_maps:
+            rule = SizeRule(scale=scale)
+            kept = [m.base_color_texture for m in self.mesh.materials]
+            self._other_maps[scale], _ = ship_asset(
+                self.mesh, SizePlan(rule, rule, rule), kept, "kept"
+            )
+        asset = self._other_maps[scale]
+        originals = [m.base_color_texture for m in asset.materials]
+        pairs = zip(originals, self.candidate_textures, strict=True)
+        return asset.with_images({id(o): t for o, t in pairs if o is not None and t is not None})
+
+    def candidate_scale(self) -> int:
+        """The reduction factor of the candidate's first texture against its reference."""
+        for reference, texture in zip(self.references, self.candidate_textures, strict=True):
+            if reference is not None and texture is not None:
+                return max(2, round(reference.shape[1] / texture.shape[1]))
+        return 2
+
     def release(self) -> None:
-        for thing in (self.original, self.candidate, self.targets, self.previews):
+        things = (self.original, self.candidate, self.targets, self.previews)
+        for thing in (*things, self.lit_original, self.lit_candidate):
             if thing is not None:
                 thing.release()

@@ -29,6 +29,7 @@ class AppState:
         view_mode: how the Views window shows the two views, an index into
             :data:`geoscaler.app.views.MODES`.
         bookmark: the index of the selected bookmark (-1: none).
+        lit: the views show every map lit (protocol 2) instead of the base colour unlit.
     """
 
     settings: TrainingSettings = field(default_factory=TrainingSettings)
@@ -39,3 +40,4 @@ class AppState:
     messages: list[str] = field(default_factory=list)
     view_mode: int = SIDE_BY_SIDE
     bookmark: int = -1
+    lit: bool = False

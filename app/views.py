@@ -159,9 +159,10 @@ class ViewsPanel:
         """The ``(original, downsampled)`` targets on screen."""
         return session.previews if self.previewing else session.targets
 
-    def render(self, session: Session, mode: int) -> None:
+    def render(self, session: Session, mode: int, lit: bool = False) -> None:
         """Draw both views (and the composed picture for ``mode`` wipe or difference) if
-        anything changed, as previews while the camera moves, in full once it rests."""
+        anything changed, as previews while the camera moves, in full once it rests; ``lit``:
+        every map under protocol 2's lights."""
         refine = self.previewing and not self.moving
         if not (self.dirty or refine) or session.candidate is None:
             self.moving = False
@@ -171,12 +172,20 @@ class ViewsPanel:
         camera, pan = self.orbit.camera(), self.orbit.pan
         targets = self.shown(session)
         original, candidate = targets
-        key = (id(session), self.orbit.to_tuple(), self.previewing)
-        if key != self.original_drawn:
+        key = (id(session), self.orbit.to_tuple(), self.previewing, lit)
+        if lit:
+            lit_original, lit_candidate = session.lit_surfaces()
+            if key != self.original_drawn:
+                renderer.render_lit(camera, lit_original, original, pan)
+            if lit_candidate is None:  # new UVs: its other maps are not re-baked live
+                renderer.render(camera, session.candidate, candidate, pan)
+            else:
+                renderer.render_lit(camera, lit_candidate, candidate, pan)
+        elif key != self.original_drawn:
             renderer.render_pair(camera, (session.original, session.candidate), targets, pan)
-            self.original_drawn = key
         else:  # a new texture alone leaves the original as it is
             renderer.render(camera, session.candidate, candidate, pan)
+        self.original_drawn = key
         if mode in (WIPE, DIFFERENCE):
             if self.composer is not None and self.composer.shape != original.shape:
                 self.composer.release()
@@ -218,7 +227,7 @@ class ViewsPanel:
         mode = state.view_mode
         available = imgui.get_content_region_avail()
         self.layout(session, mode, available.x, available.y)
-        self.render(session, mode)
+        self.render(session, mode, state.lit)
         original, candidate = self.shown(session)
         self.rects.clear()
         view_w = self.view_size[0]
@@ -229,7 +238,7 @@ class ViewsPanel:
             self._view("##original", original.image)
             if not self.stacked:  # the second view's label and picture right of the first's
                 imgui.set_cursor_pos(ImVec2(start.x + view_w + GAP, start.y))
-            imgui.text(f"downsampled: {session.candidate_label}")
+            imgui.text(f"downsampled: {session.candidate_label}{self._unlit_note(session, state)}")
             if not self.stacked:
                 imgui.set_cursor_pos_x(start.x + view_w + GAP)
             self._view("##downsampled", candidate.image)
@@ -245,11 +254,25 @@ class ViewsPanel:
         if (self.moving or self.previewing) and app.training is not None:
             app.training.user_moved()  # the camera moves: the worker holds back
 
+    @staticmethod
+    def _unlit_note(session: Session, state: AppState) -> str:
+        if state.lit and session.candidate_uvs is not None:
+            return " (drawn unlit: its other maps are not re-baked into its new UVs live)"
+        return ""
+
     def _toolbar(self, state: AppState) -> None:
         for index, name in enumerate(MODES):
             if imgui.radio_button(name, state.view_mode == index):
                 state.view_mode, self.dirty = index, True
             imgui.same_line()
+        changed, state.lit = imgui.checkbox("lit", state.lit)
+        if imgui.is_item_hovered():
+            imgui.set_tooltip(
+                "every map under two lights (protocol 2): normal, roughness and metallic "
+                "maps show; off: the base colour unlit (protocol 1)"
+            )
+        self.dirty |= changed
+        imgui.same_line()
         if imgui.button("Reset view"):
             self.go_home()
         if state.view_mode == WIPE:

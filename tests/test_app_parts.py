@@ -416,3 +416,34 @@ def test_a_wide_view_of_a_wide_mesh_is_filled(app_modules, small_demo):
     assert not (covered[:, 0].any() or covered[:, -1].any())
     target.release()
     surface.release()
+
+
+def pbr_small_demo():
+    mesh = demo_mesh(subdivisions=8, texture_size=128)
+    rng = np.random.default_rng(7)
+    normal = rng.integers(60, 196, (128, 128, 3), dtype=np.uint8)
+    normal[..., 2] = 230
+    packed = rng.integers(0, 256, (128, 128, 3), dtype=np.uint8)
+    mesh.materials[0].maps.update(normalTexture=normal, metallicRoughnessTexture=packed)
+    return mesh
+
+
+def test_the_lit_toggle_draws_both_views_lit_and_the_candidate_ships_smaller_maps(tmp_path):
+    ctx = gl_context()
+    session_module, views_module = import_app_module("session"), import_app_module("views")
+    session = session_module.Session(ctx, pbr_small_demo(), None, tmp_path, scale=4, image_size=64)
+    views = views_module.ViewsPanel()
+    views.render(session, views_module.SIDE_BY_SIDE)
+    unlit = [target.read()[0] for target in session.targets]
+    views.dirty = True
+    views.render(session, views_module.SIDE_BY_SIDE, lit=True)
+    lit = [target.read()[0] for target in session.targets]
+    for before, after in zip(unlit, lit, strict=True):
+        assert np.abs(before.astype(int) - after.astype(int)).mean() > 5
+    asset = session.candidate_asset()
+    assert asset.materials[0].maps["normalTexture"].shape == (32, 32, 3)
+    assert asset.materials[0].base_color_texture is session.candidate_textures[0]
+    warped = (session.mesh.uvs + np.float32(0.01)).astype(np.float32)
+    session.set_candidate(session.candidate_textures, warped, "warped")
+    assert session.lit_surfaces()[1] is None  # a new layout's maps are not re-baked live
+    session.release()
