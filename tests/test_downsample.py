@@ -117,6 +117,8 @@ def test_report_json_has_protocol_results_and_gain(direct_run, glb):
     assert rows["direct"]["gain_db"] == pytest.approx(
         rows["direct"]["psnr_fg"] - rows["bicubic"]["psnr_fg"]
     )
+    (texture,) = report["maps"]
+    assert texture["format_after"] == "image/png" and texture["bytes_after"] > 0
 
 
 def test_steps_stop_the_loop(direct_run):

@@ -46,11 +46,11 @@ from geoscaler.errors import GeoscalerError
 from geoscaler.io import (
     JPEG_QUALITY,
     encoded_image,
-    image_bytes,
     image_to_texture,
     load_mesh,
     output_files,
     save_mesh,
+    written_image,
 )
 from geoscaler.mesh import SourceImage, TextureError
 
@@ -163,9 +163,9 @@ def test_a_changed_jpeg_map_is_written_as_jpeg_and_a_png_map_as_png(rich, tmp_pa
     assert [p.name for p in written][:2] == ["out_wood.jpg", "out_normal.png"]
     jpeg = Image.open(written[0])
     assert jpeg.format == "JPEG" and jpeg.size == (8, 8)
-    expected, _ = encoded_image(small_wood, rich.materials[0].sources[BASE], None)
+    expected, mime = encoded_image(small_wood, rich.materials[0].sources[BASE], None)
     assert written[0].read_bytes() == expected
-    assert image_bytes(edited, small_wood, tmp_path / "out.gltf") == len(expected)
+    assert written_image(edited, small_wood, tmp_path / "out.gltf") == (len(expected), mime)
     assert written_images(tmp_path / "out.gltf")[2:] == [ORM, CLEARCOAT]  # unchanged: as read
     reloaded = load_mesh(written[-1])
     assert [m.base_color_texture.shape for m in reloaded.materials] == [(8, 8, 3)] * 2

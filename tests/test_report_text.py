@@ -23,6 +23,8 @@ def document(bytes_after: int, scores: dict) -> dict:
             "memory_after": 262144,
             "bytes_before": 500_000,
             "bytes_after": 40_000,
+            "format_before": "image/jpeg",
+            "format_after": "image/png",
         }
     ]
     return {
@@ -50,7 +52,7 @@ def test_each_texture_and_the_totals_are_listed():
     assert lines[-3:] == [
         "textures:",
         "  sofa/baseColorTexture, fringe/baseColorTexture: color, direct; 1024 x 1024 -> "
-        "256 x 256; memory 4.19 MB -> 0.26 MB; file 0.50 MB -> 40.0 kB",
+        "256 x 256; memory 4.19 MB -> 0.26 MB; file 0.50 MB JPEG -> 40.0 kB PNG",
         "  total: texture memory 4.19 MB -> 0.26 MB (6.2%); on disk 0.60 MB -> 90.0 kB (15.0%)",
     ]
 

@@ -25,7 +25,7 @@ from .discover import FoundAsset, find_assets, meta_entry
 from .images import IMAGE_FORMATS, JPEG_QUALITY, encoded_image, image_to_texture
 from .load import load_mesh
 from .paths import SUPPORTED_SUFFIXES, check_output, check_outputs, prepare_folder
-from .save import image_bytes, output_files, save_mesh
+from .save import output_files, save_mesh, written_image
 
 __all__ = [
     "FoundAsset",
@@ -37,12 +37,12 @@ __all__ = [
     "check_output",
     "check_outputs",
     "encoded_image",
-    "image_bytes",
     "image_to_texture",
     "load_mesh",
     "output_files",
     "prepare_folder",
     "save_mesh",
+    "written_image",
     "save_png",
     "write_atomically",
 ]

@@ -1,6 +1,6 @@
 """Saving a mesh: which files a save writes, checking them, and writing them atomically.
 
-:func:`output_files`, :func:`save_mesh` and :func:`image_bytes` share one plan
+:func:`output_files`, :func:`save_mesh` and :func:`written_image` share one plan
 (:func:`_plan_images`): the textures each used material shows that the format can hold, one
 image per distinct array (by identity), its file name and its type. Images are encoded by
 :func:`geoscaler.io.images.encoded_image` (the input's bytes where a texture is unchanged);
@@ -108,19 +108,22 @@ def output_files(
     return _targets(path, suffix, images)
 
 
-def image_bytes(
+def written_image(
     mesh: TexturedMesh, pixels: np.ndarray, path: str | Path, image_format: str | None = None
-) -> int:
-    """Bytes of the image :func:`save_mesh` writes (or wrote) for the texture array
-    ``pixels`` of ``mesh`` at ``path``; 0 where that format does not write it. Encodings are
-    memoised, so after a save this encodes nothing."""
+) -> tuple[int, str]:
+    """``(bytes, MIME type)`` of the image :func:`save_mesh` writes (or wrote) for the texture
+    array ``pixels`` of ``mesh`` at ``path``; ``(0, "")`` where that format does not write it.
+    Encodings are memoised, so after a save this encodes nothing."""
     path = Path(path)
     check_suffix(path)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         images, _ = _plan_images(mesh, _used_materials(mesh), path, image_format)
     found = next((image for image in images if image.texture is pixels), None)
-    return 0 if found is None else len(found.encoded()[0])
+    if found is None:
+        return 0, ""
+    data, mime = found.encoded()
+    return len(data), mime
 
 
 def _used_materials(mesh: TexturedMesh) -> list[int]:

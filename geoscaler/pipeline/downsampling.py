@@ -18,10 +18,10 @@ from geoscaler.errors import GeoscalerError
 from geoscaler.io import (
     check_output,
     check_outputs,
-    image_bytes,
     load_mesh,
     output_files,
     save_mesh,
+    written_image,
 )
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods import MethodOptions, MethodResult
@@ -191,7 +191,9 @@ def export(
     out_mesh, maps = asset_of(mesh, result, plan, method)
     written = save_mesh(out_mesh, output, overwrite=force, image_format=image_format)
     for shipped in maps:
-        shipped.bytes_after = image_bytes(out_mesh, shipped.pixels, output, image_format)
+        shipped.bytes_after, shipped.format_after = written_image(
+            out_mesh, shipped.pixels, output, image_format
+        )
     return written, maps
 
 

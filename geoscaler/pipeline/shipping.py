@@ -51,6 +51,8 @@ class ShippedMap:
         bytes_after: bytes of its encoded image in the output (set once written).
         pixels: the array that ships.
         source: how the input image came in (its format is the output's, unless asked).
+        format_before: the input image's MIME type ("" where it was made in code).
+        format_after: the output image's MIME type (set once written).
     """
 
     slots: list[str]
@@ -62,6 +64,8 @@ class ShippedMap:
     pixels: np.ndarray
     source: SourceImage | None = None
     bytes_after: int = 0
+    format_before: str = ""
+    format_after: str = ""
 
     @property
     def memory_before(self) -> int:
@@ -162,7 +166,7 @@ def ship_asset(
         :func:`with_lossless_formats`) and one
         :class:`ShippedMap` per distinct texture, in :meth:`TexturedMesh.images` order.
     """
-    mesh = with_lossless_formats(mesh, plan)
+    given, mesh = mesh, with_lossless_formats(mesh, plan)
     made = {}
     for material, texture in zip(mesh.materials, base_colors, strict=True):
         original = material.base_color_texture
@@ -189,7 +193,10 @@ def ship_asset(
         names = [f"{mesh.materials[m].name}/{s}" for m, s in places]
         before = len(source.data) if source is not None else 0
         sizes = pixels.shape[:2], out.shape[:2]
-        shipped.append(ShippedMap(names, kind, method, *sizes, before, out, source))
+        made_map = ShippedMap(names, kind, method, *sizes, before, out, source)
+        given_source = given.materials[material_index].sources.get(slot)
+        made_map.format_before = "" if given_source is None else given_source.mime
+        shipped.append(made_map)
     return mesh.with_images(replacements), shipped
 
 

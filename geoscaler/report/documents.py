@@ -259,6 +259,8 @@ def map_facts(shipped: ShippedMap) -> dict[str, Any]:
         "memory_after": shipped.memory_after,
         "bytes_before": shipped.bytes_before,
         "bytes_after": shipped.bytes_after,
+        "format_before": shipped.format_before,
+        "format_after": shipped.format_after,
     }
 
 
@@ -287,8 +289,9 @@ def _maps_lines(document: dict[str, Any]) -> list[str]:
         lines.append(
             f"  {', '.join(facts['slots'])}: {facts['class']}, {facts['method']}; "
             f"{w0} x {h0} -> {w1} x {h1}; memory {_mb(facts['memory_before'])} -> "
-            f"{_mb(facts['memory_after'])}; file {_mb(facts['bytes_before'])} -> "
-            f"{_mb(facts['bytes_after'])}"
+            f"{_mb(facts['memory_after'])}; file {_mb(facts['bytes_before'])}"
+            f"{_format_name(facts.get('format_before'))} -> {_mb(facts['bytes_after'])}"
+            f"{_format_name(facts.get('format_after'))}"
         )
     totals = document.get("totals")
     if totals and lines:
@@ -306,6 +309,15 @@ def _maps_lines(document: dict[str, Any]) -> list[str]:
                 "less tightly than the input's); --image-format jpeg or webp makes them smaller"
             )
     return lines
+
+
+_FORMAT_NAMES = {"image/png": "PNG", "image/jpeg": "JPEG", "image/webp": "WebP"}
+
+
+def _format_name(mime: str | None) -> str:
+    """`` PNG``, `` JPEG``... for a MIME type the report names; "" for none."""
+    name = _FORMAT_NAMES.get(mime or "", mime or "")
+    return f" {name}" if name else ""
 
 
 def _mb(count: int) -> str:
