@@ -13,7 +13,8 @@ PSNR-fg on Q), all from the same cameras:
   stored 8-bit values, as ``gltf-transform resize`` does;
 - ``maps``: the class filters (``geoscaler.resize.maps``: colour in linear light, normals as
   unit vectors, data per channel), the base colour by Lanczos in linear light;
-- ``maps+toksvig``: ``maps`` with roughness widened by what the normal maps lost;
+- ``maps+toksvig``: ``maps`` with roughness widened by what the normal maps lost (what
+  ``ship_asset`` does by default);
 - ``maps as JPEG``: ``maps`` with its normal and data maps written as a JPEG input's
   were before they shipped lossless (quality 90, the input's chroma subsampling);
 - ``downsample``: ``geoscaler downsample MESH --scale S --time-budget T`` (the default method,
@@ -42,7 +43,7 @@ from PIL import Image
 from geoscaler.io import load_mesh
 from geoscaler.io.images import encoded_image, open_image_bytes
 from geoscaler.mesh import BASE_COLOR, SourceImage, TexturedMesh
-from geoscaler.pipeline.shipping import ship_asset, with_toksvig_roughness
+from geoscaler.pipeline.shipping import ship_asset
 from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, VALIDATION_DISTANCE, Evaluation
 from geoscaler.render.cameras import Camera, spread_order, validation_cameras
 from geoscaler.render.lit import lit_scores
@@ -83,8 +84,9 @@ def _size(pixels: np.ndarray, scale: int) -> tuple[int, int]:
     return tuple(max(1, int(np.floor(side / scale + 0.5))) for side in pixels.shape[:2])
 
 
-def class_maps(mesh: TexturedMesh, scale: int) -> TexturedMesh:
-    """The class filters of ``geoscaler.resize.maps``; the base colour by Lanczos (linear)."""
+def class_maps(mesh: TexturedMesh, scale: int, toksvig: bool = False) -> TexturedMesh:
+    """The class filters of ``geoscaler.resize.maps``, the base colour by Lanczos (linear),
+    with or without Toksvig roughness."""
     rule = SizeRule(scale=scale)
     bases = [
         None
@@ -92,7 +94,7 @@ def class_maps(mesh: TexturedMesh, scale: int) -> TexturedMesh:
         else resize_map(m.base_color_texture, rule.size(*m.base_color_texture.shape[:2]), COLOR)
         for m in mesh.materials
     ]
-    shipped, _ = ship_asset(mesh, SizePlan(rule, rule, rule), bases, "lanczos")
+    shipped, _ = ship_asset(mesh, SizePlan(rule, rule, rule), bases, "lanczos", toksvig=toksvig)
     return shipped
 
 
@@ -161,7 +163,7 @@ def score_mesh(path: Path, scale: int, views: int, budget: float | None) -> dict
     }
     maps = class_maps(mesh, scale)
     candidates["maps"] = maps
-    candidates["maps+toksvig"] = with_toksvig_roughness(mesh, maps)
+    candidates["maps+toksvig"] = class_maps(mesh, scale, toksvig=True)
     candidates["maps as JPEG"] = as_jpeg(mesh, maps)
     with tempfile.TemporaryDirectory() as folder:
         if budget is not None:

@@ -11,7 +11,7 @@ from mesh_support import mesh_of
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import Material, SourceImage, TexturedMesh
 from geoscaler.methods import MethodOptions, RunContext, run_method
-from geoscaler.pipeline.shipping import ship_asset, with_toksvig_roughness
+from geoscaler.pipeline.shipping import TOKSVIG, ship_asset, toksvig_maps
 from geoscaler.protocol import Evaluation
 from geoscaler.render.renderer import Renderer
 from geoscaler.resize.maps import METHOD_NAMES
@@ -66,7 +66,7 @@ def test_every_map_ships_at_its_class_size_and_shared_maps_stay_shared():
     assert [(m.kind, m.method) for m in shipped] == [
         ("color", "direct"),
         ("normal", METHOD_NAMES["normal"]),
-        ("data", METHOD_NAMES["data"]),
+        ("data", f"{METHOD_NAMES['data']}, {TOKSVIG}"),  # its material's normal map shrank
     ]
     assert shipped[0].slots == ["left/baseColorTexture", "right/baseColorTexture"]
     assert shipped[1].slots == ["left/normalTexture", "right/normalTexture"]
@@ -157,12 +157,29 @@ def test_maps_the_plan_keeps_at_their_size_keep_their_format_and_bytes():
 def test_toksvig_widens_the_roughness_of_materials_whose_normal_map_got_smaller():
     mesh = shared_pbr_mesh()  # random texels: a bumpy normal map
     made = np.zeros((16, 16, 3), np.uint8)
-    shipped, _ = ship_asset(mesh, size_plan({"all": 4}, {}), [made, made], "direct")
-    widened = with_toksvig_roughness(mesh, shipped)
-    before = shipped.materials[0].maps["metallicRoughnessTexture"]
+    plan = size_plan({"all": 4}, {})
+    plain, _ = ship_asset(mesh, plan, [made, made], "direct", toksvig=False)
+    widened, shipped = ship_asset(mesh, plan, [made, made], "direct")
+    before = plain.materials[0].maps["metallicRoughnessTexture"]
     after = widened.materials[0].maps["metallicRoughnessTexture"]
     assert (after[..., 1] >= before[..., 1]).all() and (after[..., 1] > before[..., 1]).any()
     assert (after[..., [0, 2]] == before[..., [0, 2]]).all()
-    kept, _ = ship_asset(mesh, SizePlan(SizeRule(4), SizeRule(), SizeRule(4)), [made, made], "d")
-    unchanged = with_toksvig_roughness(mesh, kept).materials[0].maps["metallicRoughnessTexture"]
-    assert unchanged is kept.materials[0].maps["metallicRoughnessTexture"]
+    assert shipped[2].pixels is after and shipped[2].method.endswith(TOKSVIG)
+    again = plain.with_images(toksvig_maps(mesh, plain))
+    assert (again.materials[0].maps["metallicRoughnessTexture"] == after).all()
+
+
+def test_toksvig_leaves_roughness_alone_where_the_normal_map_is_kept_or_the_layout_is_new():
+    mesh = shared_pbr_mesh()
+    made = np.zeros((16, 16, 3), np.uint8)
+    keep_normals = SizePlan(SizeRule(4), SizeRule(), SizeRule(4))
+    kept, shipped = ship_asset(mesh, keep_normals, [made, made], "direct")
+    assert shipped[2].method == METHOD_NAMES["data"]
+    rough = mesh.materials[0].maps["metallicRoughnessTexture"]
+    rebaked = np.zeros((16, 16, 3), np.uint8)
+    plan = size_plan({"all": 4}, {})
+    new_layout, _ = ship_asset(mesh, plan, [made, made], "d", {id(rough): (rebaked, "re-baked")})
+    assert new_layout.materials[0].maps["metallicRoughnessTexture"] is rebaked
+    mesh.materials[0].properties["normalTexture"] = {"texCoord": 1}  # another UV set
+    _, shipped = ship_asset(mesh, plan, [made, made], "direct")
+    assert shipped[2].method == METHOD_NAMES["data"]

@@ -148,6 +148,7 @@ def ship_asset(
     base_colors: Sequence[np.ndarray | None],
     base_color_method: str,
     premade: Mapping[int, tuple[np.ndarray, str]] | None = None,
+    toksvig: bool = True,
 ) -> tuple[TexturedMesh, list[ShippedMap]]:
     """The mesh as it ships, and what happened to each of its textures.
 
@@ -159,6 +160,8 @@ def ship_asset(
         base_color_method: how the base colours were made, for the report.
         premade: maps already made, ``id(original array) -> (array, method)`` (the maps of
             a new UV layout, :func:`relayout_maps`).
+        toksvig: widen the roughness of materials whose normal map got smaller
+            (:func:`toksvig_maps`; in the mesh's own layout only, without ``premade``).
 
     Returns:
         The mesh to write (every texture replaced by its shipped array, sharing kept; base
@@ -197,27 +200,63 @@ def ship_asset(
         given_source = given.materials[material_index].sources.get(slot)
         made_map.format_before = "" if given_source is None else given_source.mime
         shipped.append(made_map)
-    return mesh.with_images(replacements), shipped
+    out = mesh.with_images(replacements)
+    if toksvig and not premade:
+        out = _widen_roughness(mesh, out, shipped)
+    return out, shipped
 
 
-def with_toksvig_roughness(original: TexturedMesh, shipped: TexturedMesh) -> TexturedMesh:
-    """``shipped`` with the roughness of every material whose normal map got smaller widened
-    by what the normal map lost (:func:`geoscaler.resize.maps.toksvig_roughness`, from the
-    original's full-resolution normal map). Materials without a metallic-roughness map, or
-    with a normal map at its size, are unchanged; a map several materials share is widened
-    once, by the first one's normal map."""
-    replacements: dict[int, np.ndarray] = {}
+def _widen_roughness(
+    mesh: TexturedMesh, out: TexturedMesh, shipped: list[ShippedMap]
+) -> TexturedMesh:
+    """``out`` with :func:`toksvig_maps` applied, and ``shipped`` told of it."""
+    widened = toksvig_maps(mesh, out)
+    for made_map in shipped:
+        if id(made_map.pixels) in widened:
+            made_map.pixels = widened[id(made_map.pixels)]
+            made_map.method = f"{made_map.method}, {TOKSVIG}"
+    return out.with_images(widened)
+
+
+TOKSVIG = "roughness widened by the normal map (Toksvig)"
+"""What the report adds to the method of a metallic-roughness map :func:`toksvig_maps` made."""
+
+
+def toksvig_maps(original: TexturedMesh, shipped: TexturedMesh) -> dict[int, np.ndarray]:
+    """The metallic-roughness maps of ``shipped`` widened by what their material's normal map
+    lost (:func:`geoscaler.resize.maps.toksvig_roughness`, from the original's full-resolution
+    normal map): ``id(shipped map) -> widened map``.
+
+    A material qualifies where its normal and metallic-roughness maps were both made smaller
+    in its own layout (neither kept at its size nor re-baked) and read the same UVs (same
+    ``texCoord`` and texture transform); a map several materials share is widened once, by
+    the first one's normal map."""
+    widened: dict[int, np.ndarray] = {}
     for before, after in zip(original.materials, shipped.materials, strict=True):
         normal, normal_out = before.maps.get(NORMAL_SLOT), after.maps.get(NORMAL_SLOT)
-        packed = after.maps.get(METALLIC_ROUGHNESS_SLOT)
-        if normal is None or normal_out is None or packed is None or id(packed) in replacements:
+        packed = before.maps.get(METALLIC_ROUGHNESS_SLOT)
+        packed_out = after.maps.get(METALLIC_ROUGHNESS_SLOT)
+        if any(m is None for m in (normal, normal_out, packed, packed_out)):
             continue
-        if normal_out.shape[:2] == normal.shape[:2]:
+        if id(packed_out) in widened or not _same_uv_set(
+            before, NORMAL_SLOT, METALLIC_ROUGHNESS_SLOT
+        ):
+            continue
+        if normal_out.shape[:2] == normal.shape[:2] or packed_out.shape[:2] == packed.shape[:2]:
             continue
         shortening = normal_shortening(normal, normal_out.shape[:2])
         factor = float(after.properties.get("pbrMetallicRoughness", {}).get("roughnessFactor", 1))
-        replacements[id(packed)] = toksvig_roughness(packed, shortening, factor)
-    return shipped.with_images(replacements)
+        widened[id(packed_out)] = toksvig_roughness(packed_out, shortening, factor)
+    return widened
+
+
+def _same_uv_set(material: Material, first: str, second: str) -> bool:
+    """Whether two slots of a material read their textures on the same UVs."""
+    infos = [slot_info(material.properties, slot) for slot in (first, second)]
+    keys = [
+        (i.get("texCoord", 0), i.get("extensions", {}).get("KHR_texture_transform")) for i in infos
+    ]
+    return keys[0] == keys[1]
 
 
 def asset_of(
