@@ -272,3 +272,12 @@ def test_scores_of_the_original_itself_are_perfect_and_a_changed_map_scores_lowe
     assert math.isinf(float(same["psnr_fg"][0]))
     assert float(changed["psnr_fg"][0]) < 40
     assert foreground.shape == (1,) and foreground[0] > 1000  # the quad fills much of the view
+
+
+def test_a_mesh_whose_maps_lit_renders_cannot_read_defaults_to_protocol_1():
+    from geoscaler.render.lit import default_protocol
+
+    mesh = pbr_quad()
+    assert default_protocol(mesh) == 2
+    mesh.materials[0].properties["normalTexture"] = {"texCoord": 1}
+    assert default_protocol(mesh) == 1

@@ -14,8 +14,9 @@ camera-relative directional lights and a uniform ambient:
   camera's samples need whatever the maps (frame, view vectors, UV footprints),
   :meth:`LitScene.render` shades maps on it.
 
-Shading is differentiable in every map's texels and in the UVs. Vectors are ``(3, N)``: one
-contiguous row per component, as the sampler returns them.
+Shading is differentiable in every map's texels (and in the UVs of a footprint that carries
+gradients). Vectors are ``(3, N)``: one contiguous row per component, as the sampler returns
+them.
 """
 
 from __future__ import annotations
@@ -470,13 +471,19 @@ def _material_surface(view: LitView, material: LitMaterial, hit: torch.Tensor | 
 
 def default_protocol(mesh: TexturedMesh) -> int:
     """The protocol a mesh is scored under unless asked: 2 (lit) where a glTF material has a
-    normal or metallic-roughness map, whose detail only light shows; 1 (unlit base colour)
-    otherwise (OBJ materials have neither under protocol 2)."""
+    normal or metallic-roughness map, whose detail only light shows, and every material's
+    maps are on the UVs lit renders read (:func:`lit_maps`); 1 (unlit base colour) otherwise
+    (OBJ materials have neither map under protocol 2)."""
     lit = any(
         NORMAL in m.maps or METALLIC_ROUGHNESS in m.maps
         for m in mesh.materials
         if "mtl" not in m.properties
     )
+    try:
+        for material in mesh.materials:
+            lit_maps(material)
+    except GeoscalerError:
+        return 1
     return 2 if lit else 1
 
 
