@@ -478,18 +478,9 @@ class GLRenderer:
         fbo: moderngl.Framebuffer,
         pan: tuple[float, float],
     ) -> None:
-        """Draw ``surfaces[i]`` into colour attachment ``i`` of ``fbo`` (supersampled); a
-        non-square ``fbo`` sees less across its shorter side (:func:`~.orbit.view_scale`)."""
-        ctx = self.ctx
-        widen = np.diag([*view_scale(*fbo.size), 1.0, 1.0])
-        clip = pan_matrix(pan) @ widen @ camera.clip_matrix()
-        fbo.use()
-        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        ctx.enable(moderngl.DEPTH_TEST)
-        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
-        ctx.depth_func = "<"
-        prog = vao.program
-        prog["clip_from_world"].write(clip.T.astype(np.float32).tobytes())
+        """Draw ``surfaces[i]`` into colour attachment ``i`` of ``fbo`` (supersampled)."""
+        ctx, prog = self.ctx, vao.program
+        self._begin(camera, prog, fbo, pan)
         views = range(len(surfaces))
         for index, (first, count) in enumerate(self.ranges):
             if count == 0:
@@ -514,15 +505,7 @@ class GLRenderer:
     ) -> Target:
         """Draw ``surface`` lit (protocol 2) from ``camera`` into ``target``."""
         ctx, prog = self.ctx, self.lit_program
-        fbo = target.draw_fbo
-        widen = np.diag([*view_scale(*fbo.size), 1.0, 1.0])
-        clip = pan_matrix(pan) @ widen @ camera.clip_matrix()
-        fbo.use()
-        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        ctx.enable(moderngl.DEPTH_TEST)
-        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
-        ctx.depth_func = "<"
-        prog["clip_from_world"].write(clip.T.astype(np.float32).tobytes())
+        self._begin(camera, prog, target.draw_fbo, pan)
         self._set_lights(camera)
         for (first, count), (maps, factors) in zip(self.ranges, surface.materials, strict=True):
             if count == 0:
@@ -560,6 +543,24 @@ class GLRenderer:
             return self.render_lit(camera, surface, target).read()
         finally:
             target.release()
+
+    def _begin(
+        self,
+        camera: Camera,
+        prog: moderngl.Program,
+        fbo: moderngl.Framebuffer,
+        pan: tuple[float, float],
+    ) -> None:
+        """Clear ``fbo`` and set depth testing and ``prog``'s camera for a draw: a non-square
+        ``fbo`` sees less across its shorter side (:func:`~.orbit.view_scale`)."""
+        widen = np.diag([*view_scale(*fbo.size), 1.0, 1.0])
+        clip = pan_matrix(pan) @ widen @ camera.clip_matrix()
+        fbo.use()
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        self.ctx.enable(moderngl.DEPTH_TEST)
+        self.ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        self.ctx.depth_func = "<"
+        prog["clip_from_world"].write(clip.T.astype(np.float32).tobytes())
 
     def _resolve(self, target: Target) -> None:
         """Box-average ``target``'s supersamples into its ``image`` and ``covered``."""
