@@ -232,3 +232,18 @@ def ribbon_mesh(quads: int = 16, texture_size: int = 128) -> TexturedMesh:
     return mesh_of(
         positions, faces, uvs, np.zeros(len(faces), np.int64), [Material("ribbon", texture)]
     )
+
+
+def pbr_demo(subdivisions: int = 8, texture_size: int = 128, seed: int = 7) -> TexturedMesh:
+    """The demo asset with a bumpy normal map (random tilts of up to about 30 degrees) and a
+    metallic-roughness map of random texels, both ``texture_size`` square."""
+    from geoscaler.procedural import demo_mesh
+
+    mesh = demo_mesh(subdivisions=subdivisions, texture_size=texture_size)
+    rng = np.random.default_rng(seed)
+    shape = (texture_size, texture_size, 3)
+    normal = rng.integers(60, 196, shape, dtype=np.uint8)
+    normal[..., 2] = 230
+    packed = rng.integers(0, 256, shape, dtype=np.uint8)
+    mesh.materials[0].maps.update(normalTexture=normal, metallicRoughnessTexture=packed)
+    return mesh

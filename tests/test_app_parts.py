@@ -14,6 +14,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from app_support import gl_context, import_app_module
+from mesh_support import pbr_demo
 
 from geoscaler.errors import GeoscalerError
 from geoscaler.procedural import demo_mesh
@@ -418,20 +419,10 @@ def test_a_wide_view_of_a_wide_mesh_is_filled(app_modules, small_demo):
     surface.release()
 
 
-def pbr_small_demo():
-    mesh = demo_mesh(subdivisions=8, texture_size=128)
-    rng = np.random.default_rng(7)
-    normal = rng.integers(60, 196, (128, 128, 3), dtype=np.uint8)
-    normal[..., 2] = 230
-    packed = rng.integers(0, 256, (128, 128, 3), dtype=np.uint8)
-    mesh.materials[0].maps.update(normalTexture=normal, metallicRoughnessTexture=packed)
-    return mesh
-
-
 def test_the_lit_toggle_draws_both_views_lit_and_the_candidate_ships_smaller_maps(tmp_path):
     ctx = gl_context()
     session_module, views_module = import_app_module("session"), import_app_module("views")
-    session = session_module.Session(ctx, pbr_small_demo(), None, tmp_path, scale=4, image_size=64)
+    session = session_module.Session(ctx, pbr_demo(), None, tmp_path, scale=4, image_size=64)
     views = views_module.ViewsPanel()
     views.render(session, views_module.SIDE_BY_SIDE)
     unlit = [target.read()[0] for target in session.targets]

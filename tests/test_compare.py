@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 from conftest import ONE_VIEW, small_renderer
+from mesh_support import pbr_demo
 from PIL import Image
 
 from geoscaler.cli import main
@@ -233,7 +234,7 @@ def test_cli_json_and_out_folder(glb, tmp_path, capsys):
 
 def test_cli_scores_a_pbr_asset_lit_and_says_so(tmp_path, capsys):
     path = tmp_path / "pbr.glb"
-    save_mesh(pbr_demo(), path)
+    save_mesh(pbr_demo(texture_size=64), path)
     argv = ["compare", str(path), "--methods", "bicubic", "--device", "cpu"]
     assert main(argv, evaluation=ONE_VIEW) == 0
     assert "protocol 2" in capsys.readouterr().out
@@ -338,24 +339,13 @@ def test_a_learned_method_gets_the_validation_uncached_and_the_whole_budget():
 # ----------------------------------------------------------------------------- protocol 2
 
 
-def pbr_demo():
-    """The demo mesh with a bumpy normal map and a metallic-roughness map of random texels."""
-    mesh = demo_mesh(subdivisions=8, texture_size=64)
-    rng = np.random.default_rng(5)
-    normal = rng.integers(0, 256, (64, 64, 3), dtype=np.uint8)
-    normal[..., 2] = 255
-    packed = rng.integers(0, 256, (64, 64, 3), dtype=np.uint8)
-    mesh.materials[0].maps.update(normalTexture=normal, metallicRoughnessTexture=packed)
-    return mesh
-
-
 def test_a_mesh_with_pbr_maps_is_compared_lit_each_filter_resizing_every_map():
     from geoscaler.pipeline.shipping import every_map_by
     from geoscaler.render.cameras import validation_cameras
     from geoscaler.render.lit import lit_scores
     from geoscaler.resize.sizes import SizePlan, SizeRule
 
-    mesh = pbr_demo()
+    mesh = pbr_demo(texture_size=64)
     evaluation = Evaluation.quick(VIEWS, image_size=64)
     renderer = Renderer(mesh, "cpu", evaluation)
     comparison = compare_mesh(mesh, [4], ["bicubic", "lanczos"], renderer=renderer)
@@ -375,8 +365,8 @@ def test_a_mesh_with_pbr_maps_is_compared_lit_each_filter_resizing_every_map():
 def test_the_protocol_can_be_asked_and_a_base_colour_mesh_defaults_to_protocol_1(mesh):
     from geoscaler.render.lit import default_protocol
 
-    assert default_protocol(mesh) == 1 and default_protocol(pbr_demo()) == 2
-    renderer = Renderer(pbr_demo(), "cpu", Evaluation.quick((0,), image_size=32))
+    assert default_protocol(mesh) == 1 and default_protocol(pbr_demo(texture_size=64)) == 2
+    renderer = Renderer(pbr_demo(texture_size=64), "cpu", Evaluation.quick((0,), image_size=32))
     unlit = compare_mesh(renderer.mesh, [4], ["bicubic"], renderer=renderer, protocol=1)
     assert unlit.protocol == 1
     with pytest.raises(GeoscalerError, match="--protocol 3: must be 1"):

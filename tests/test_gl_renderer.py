@@ -11,6 +11,7 @@ import pytest
 import torch
 from app_support import gl_context, import_app_module
 from conftest import mesh_params
+from mesh_support import pbr_demo
 
 from geoscaler.color import texture_to_linear
 from geoscaler.io import load_mesh
@@ -161,12 +162,7 @@ def test_gl_lit_matches_torch_lit_on_the_pbr_development_meshes(ctx, path):
 
 
 def test_gl_lit_matches_torch_lit_with_a_bumpy_normal_map_and_its_scale(ctx):
-    mesh = demo_mesh(subdivisions=16, texture_size=128)
-    rng = np.random.default_rng(4)
-    normal = rng.integers(60, 196, (128, 128, 3), dtype=np.uint8)
-    normal[..., 2] = 230
-    packed = rng.integers(0, 256, (128, 128, 3), dtype=np.uint8)
-    mesh.materials[0].maps.update(normalTexture=normal, metallicRoughnessTexture=packed)
+    mesh = pbr_demo(subdivisions=16, seed=4)
     mesh.materials[0].properties["normalTexture"] = {"scale": 0.7}
     for view in (3, 40):
         assert lit_agreement(ctx, mesh, validation_cameras()[view]) >= AGREEMENT_DB
@@ -175,8 +171,9 @@ def test_gl_lit_matches_torch_lit_with_a_bumpy_normal_map_and_its_scale(ctx):
 def test_gl_lit_matches_torch_lit_on_the_back_of_a_normal_mapped_quad(ctx):
     from dataclasses import replace
 
+    from mesh_support import quad_mesh
+
     from geoscaler.mesh import Material
-    from tests.mesh_support import quad_mesh
 
     rng = np.random.default_rng(6)
     normal = rng.integers(40, 216, (32, 32, 3), dtype=np.uint8)

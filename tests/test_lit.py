@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
+from mesh_support import quad_mesh
 
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import Material
@@ -28,7 +29,6 @@ from geoscaler.render.lit import (
 )
 from geoscaler.render.renderer import Renderer
 from geoscaler.render.texture import MipTexture, UVFootprint
-from tests.mesh_support import quad_mesh
 
 UP = torch.tensor([[0.0], [0.0], [1.0]], dtype=torch.float64)
 HEAD_ON = [Light((0.0, 0.0, 1.0), 2.0)]  # the key light's irradiance, along the normal
