@@ -3,7 +3,7 @@ project's class filters with and without Toksvig roughness, and what `geoscaler 
 
 Usage:
     python benchmarks/lit_maps.py [MESH ...] [--scale 4 8] [--views 60] [--time-budget 60]
-        [--no-product] [--json out.json]
+        [--no-product] [--json out.json] [--figure DIR]
 
 Per mesh and scale, each candidate is scored against the full-resolution original under
 protocol 2 (PSNR-fg and SSIM-fg on Q, near and far) and under protocol 1 (unlit base colour,
@@ -19,6 +19,10 @@ PSNR-fg on Q), all from the same cameras:
   were before they shipped lossless (quality 90, the input's chroma subsampling);
 - ``downsample``: ``geoscaler downsample MESH --scale S --time-budget T`` (the default method,
   60 s), read back from the GLB it wrote.
+
+With ``--figure DIR``: a lit picture per mesh and scale, ``DIR/lit_MESH_xS.png``: two near
+views of the original beside Lanczos-every-map and what ``downsample`` ships (zooms, error
+heatmaps; :func:`geoscaler.report.figures.comparison_sheet`).
 
 Without MESH: the PBR development meshes in ../shared/data (skipped cleanly when absent).
 ``--views`` takes the first N of the protocol's 60 directions in its spread order
@@ -155,7 +159,40 @@ def texture_bytes(mesh: TexturedMesh) -> int:
     return total
 
 
-def score_mesh(path: Path, scale: int, views: int, budget: float | None) -> dict[str, Scores]:
+def lit_figure(mesh: TexturedMesh, candidates: dict[str, TexturedMesh], title: str) -> np.ndarray:
+    """The comparison sheet of ``candidates`` lit on two near views (protocol 2)."""
+    from geoscaler.render.lit import LitScene, lit_materials
+    from geoscaler.render.renderer import image_to_uint8
+    from geoscaler.report.figures import comparison_sheet
+
+    picked = [3, 40]
+    cameras = [validation_cameras(NEAR_DISTANCE)[i] for i in picked]
+    scene = LitScene(Renderer(mesh, "cpu", Evaluation(reference_max_size=None)))
+    scores, _ = lit_scores(mesh, list(candidates.values()), cameras, "cpu")
+    references, foreground, renders = [], [], {name: [] for name in candidates}
+    with torch.no_grad():
+        for camera in cameras:
+            view = scene.view(camera)
+            references.append(image_to_uint8(scene.render(view, lit_materials(mesh, "cpu"))))
+            foreground.append(scene.renderer.foreground(view.gbuffer).numpy())
+            for name, candidate in candidates.items():
+                own = LitScene(Renderer(candidate, "cpu", scene.renderer.evaluation))
+                image = own.render(own.view(camera), lit_materials(candidate, "cpu"))
+                renders[name].append(image_to_uint8(image))
+    return comparison_sheet(
+        references=references,
+        candidates=renders,
+        psnr_fg={n: s["psnr_fg"].tolist() for n, s in zip(candidates, scores, strict=True)},
+        foreground=foreground,
+        view_titles=[f"view {i} at distance {NEAR_DISTANCE:g}, lit" for i in picked],
+        column_titles=["original", *candidates],
+        title=title,
+    )
+
+
+def score_mesh(
+    path: Path, scale: int, views: int, budget: float | None, figure: Path | None = None
+) -> dict[str, Scores]:
     mesh = load_mesh(path)
     candidates = {
         "bicubic-every-map": every_map(mesh, scale, Image.Resampling.BICUBIC),
@@ -168,6 +205,14 @@ def score_mesh(path: Path, scale: int, views: int, budget: float | None) -> dict
     with tempfile.TemporaryDirectory() as folder:
         if budget is not None:
             candidates["downsample"] = downsampled(path, scale, budget, Path(folder))
+        if figure is not None:
+            shown = {
+                k: v for k, v in candidates.items() if k in ("lanczos-every-map", "downsample")
+            }
+            title = f"{path.parent.name} x{scale}, protocol 2 (lit)"
+            Image.fromarray(lit_figure(mesh, shown, title)).save(
+                figure / f"lit_{path.parent.name}_x{scale}.png"
+            )
         order = spread_order(60)[:views]
         results = {name: Scores() for name in candidates}
         for set_name, distance in SETS.items():
@@ -191,6 +236,7 @@ def main() -> int:
     parser.add_argument("--time-budget", type=float, default=60.0)
     parser.add_argument("--no-product", action="store_true", help="skip `geoscaler downsample`")
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--figure", type=Path, help="folder for a lit picture per mesh")
     args = parser.parse_args()
     paths = args.meshes or [DATA / entry for entry in PBR_MESHES]
     table = []
@@ -201,7 +247,7 @@ def main() -> int:
         for scale in args.scale:
             start = time.perf_counter()
             budget = None if args.no_product else args.time_budget
-            results = score_mesh(path, scale, args.views, budget)
+            results = score_mesh(path, scale, args.views, budget, args.figure)
             for name, scores in results.items():
                 table.append(
                     {"mesh": path.parent.name, "scale": scale, "candidate": name, **scores.__dict__}
