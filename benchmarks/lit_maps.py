@@ -169,16 +169,19 @@ def lit_figure(mesh: TexturedMesh, candidates: dict[str, TexturedMesh], title: s
     cameras = [validation_cameras(NEAR_DISTANCE)[i] for i in picked]
     scene = LitScene(Renderer(mesh, "cpu", Evaluation(reference_max_size=None)))
     scores, _ = lit_scores(mesh, list(candidates.values()), cameras, "cpu")
+    original = lit_materials(mesh, "cpu")
+    shown = {
+        name: (LitScene(Renderer(c, "cpu", scene.renderer.evaluation)), lit_materials(c, "cpu"))
+        for name, c in candidates.items()
+    }
     references, foreground, renders = [], [], {name: [] for name in candidates}
     with torch.no_grad():
         for camera in cameras:
             view = scene.view(camera)
-            references.append(image_to_uint8(scene.render(view, lit_materials(mesh, "cpu"))))
+            references.append(image_to_uint8(scene.render(view, original)))
             foreground.append(scene.renderer.foreground(view.gbuffer).numpy())
-            for name, candidate in candidates.items():
-                own = LitScene(Renderer(candidate, "cpu", scene.renderer.evaluation))
-                image = own.render(own.view(camera), lit_materials(candidate, "cpu"))
-                renders[name].append(image_to_uint8(image))
+            for name, (own, maps) in shown.items():
+                renders[name].append(image_to_uint8(own.render(own.view(camera), maps)))
     return comparison_sheet(
         references=references,
         candidates=renders,

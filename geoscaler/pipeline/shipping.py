@@ -20,6 +20,7 @@ from geoscaler.io.slots import slot_info
 from geoscaler.mesh import Material, SourceImage, TexturedMesh
 from geoscaler.methods import MethodResult
 from geoscaler.protocol import BYTES_PER_TEXEL
+from geoscaler.render.lit import METALLIC_ROUGHNESS, NORMAL
 from geoscaler.resize.filters import resize_channels
 from geoscaler.resize.maps import (
     METHOD_NAMES,
@@ -33,8 +34,6 @@ from geoscaler.uv.atlas import Atlas
 from geoscaler.uv.bake import ChartMaps, bake
 
 BASE_COLOR = "baseColorTexture"
-NORMAL_SLOT = "normalTexture"
-METALLIC_ROUGHNESS_SLOT = "metallicRoughnessTexture"
 LOSSLESS = "image/png"
 
 
@@ -233,14 +232,12 @@ def toksvig_maps(original: TexturedMesh, shipped: TexturedMesh) -> dict[int, np.
     the first one's normal map."""
     widened: dict[int, np.ndarray] = {}
     for before, after in zip(original.materials, shipped.materials, strict=True):
-        normal, normal_out = before.maps.get(NORMAL_SLOT), after.maps.get(NORMAL_SLOT)
-        packed = before.maps.get(METALLIC_ROUGHNESS_SLOT)
-        packed_out = after.maps.get(METALLIC_ROUGHNESS_SLOT)
+        normal, normal_out = before.maps.get(NORMAL), after.maps.get(NORMAL)
+        packed = before.maps.get(METALLIC_ROUGHNESS)
+        packed_out = after.maps.get(METALLIC_ROUGHNESS)
         if any(m is None for m in (normal, normal_out, packed, packed_out)):
             continue
-        if id(packed_out) in widened or not _same_uv_set(
-            before, NORMAL_SLOT, METALLIC_ROUGHNESS_SLOT
-        ):
+        if id(packed_out) in widened or not _same_uv_set(before, NORMAL, METALLIC_ROUGHNESS):
             continue
         if normal_out.shape[:2] == normal.shape[:2] or packed_out.shape[:2] == packed.shape[:2]:
             continue
