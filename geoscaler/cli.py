@@ -114,6 +114,7 @@ def job_settings(args: argparse.Namespace) -> dict[str, Any]:
         DEFAULT_TIME_BUDGET,
         check_image_format,
         check_method,
+        check_protocol,
         check_size_plan,
         check_variant,
         method_options,
@@ -141,6 +142,7 @@ def job_settings(args: argparse.Namespace) -> dict[str, Any]:
         "options": options,
         "force": args.force,
         "image_format": check_image_format(args.image_format),
+        "protocol": None if args.protocol is None else check_protocol(args.protocol),
     }
 
 
@@ -390,6 +392,13 @@ def add_job_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--steps", type=int, help="maximum optimisation steps (default: the method's, 300)"
+    )
+    parser.add_argument(
+        "--protocol",
+        type=int,
+        help="what direct optimises for: 1, the base colour through unlit views; 2, then "
+        "every map of the material through lit views (default: 2 where a material has a "
+        "normal or metallic-roughness map, else 1; see docs/protocol.md)",
     )
     _add_device_argument(parser)
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")

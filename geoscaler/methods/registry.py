@@ -25,6 +25,7 @@ from geoscaler.clock import WALL_CLOCK, Clock
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import TexturedMesh
 from geoscaler.optim.events import Controller, ProgressEvent
+from geoscaler.optim.lit import LitFacts
 from geoscaler.optim.validation import Validation
 from geoscaler.protocol import REFERENCE_MAX_SIZE
 from geoscaler.render.renderer import Renderer
@@ -204,6 +205,10 @@ class MethodResult:
             network method ran.
         shipping: what the job ships for it (set by the job).
         first_step_after_start: seconds from the job's start to the first step's end.
+        maps: maps other than the base colours made for the result, ``id(original array) ->
+            (array, how it was made)`` (the job's lit stage, :mod:`geoscaler.pipeline.lit`);
+            None: every other map by its class.
+        lit: what the lit stage did (None: it did not run).
     """
 
     textures: list[np.ndarray | None]
@@ -217,6 +222,8 @@ class MethodResult:
     network: NetworkFacts | None = None
     shipping: Shipping | None = None
     first_step_after_start: float | None = None
+    maps: dict[int, tuple[np.ndarray, str]] | None = None
+    lit: LitFacts | None = None
 
     def shipped(self, name: str) -> str:
         """What ships for method ``name``: itself, or the filter the job chose instead."""

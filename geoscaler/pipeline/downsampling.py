@@ -26,7 +26,7 @@ from geoscaler.io import (
 from geoscaler.mesh import TexturedMesh
 from geoscaler.methods import MethodOptions, MethodResult
 from geoscaler.optim.events import Controller
-from geoscaler.pipeline.arguments import check_method
+from geoscaler.pipeline.arguments import check_method, check_protocol
 from geoscaler.pipeline.job import (
     Downsampled,
     JobBudget,
@@ -40,6 +40,7 @@ from geoscaler.pipeline.shipping import (
     with_lossless_formats,
 )
 from geoscaler.protocol import Evaluation
+from geoscaler.render.lit import default_protocol
 from geoscaler.render.renderer import Renderer
 from geoscaler.resize.sizes import SizePlan, check_scale, size_plan
 
@@ -67,6 +68,8 @@ class Job:
             start: loading the mesh included).
         clock: where the job reads the time.
         image_format: "png", "jpeg" or "webp" for every image written (None: as the input).
+        protocol: 1, the base colour optimised unlit; 2, ``direct`` then trains every map
+            lit (:mod:`geoscaler.pipeline.lit`).
     """
 
     mesh_path: Path
@@ -82,6 +85,7 @@ class Job:
     started_at: float = field(default_factory=WALL_CLOCK.now)
     image_format: str | None = None
     clock: Clock = WALL_CLOCK
+    protocol: int = 1
 
 
 def product_evaluation(evaluation: Evaluation) -> Evaluation:
@@ -118,13 +122,15 @@ def prepare(
     started_at: float | None = None,
     image_format: str | None = None,
     clock: Clock = WALL_CLOCK,
+    protocol: int | None = None,
 ) -> Job:
     """Check everything that can be checked, load the mesh, and return the :class:`Job`.
 
     ``sizes``: a scale for every texture, or a rule per texture class. ``started_at``: the
     instant on ``clock`` the job's time budget counts from (default: now; the CLI passes its
     process's start). ``image_format``: "png", "jpeg" or "webp" for every image written
-    (None: each in its input's format).
+    (None: each in its input's format). ``protocol``: 1 or 2 (:class:`Job`); None: the
+    mesh's default (:func:`geoscaler.render.lit.default_protocol`).
 
     Raises:
         GeoscalerError: a bad scale or method, an output name, folder or suffix; an output
@@ -141,6 +147,7 @@ def prepare(
         report_path = check_output(report, force=force, inputs=[mesh_path])
         _check_distinct(report_path, [output], "the output mesh")
     mesh = load_mesh(mesh_path)
+    protocol = default_protocol(mesh) if protocol is None else check_protocol(protocol)
     base_sizes = checked_output_sizes(mesh, plan.color, None)
     originals = [m.base_color_texture for m in mesh.materials]
     if all(t is None or t.shape[:2] == size for t, size in zip(originals, base_sizes, strict=True)):
@@ -169,6 +176,7 @@ def prepare(
         started_at,
         image_format,
         clock,
+        protocol,
     )
 
 
@@ -220,6 +228,8 @@ def run_job(
         controller,
         JobBudget(job.started_at, EXPORT_RESERVE),
         job.clock,
+        job.protocol,
+        job.plan,
     )
     (observer or JobObserver()).stage("writing", 0, 1)
     shipped = done.result.shipped(job.method)

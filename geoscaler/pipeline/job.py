@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from geoscaler.clock import WALL_CLOCK, Clock
+from geoscaler.clock import WALL_CLOCK, Budget, Clock
 from geoscaler.errors import GeoscalerError
 from geoscaler.io import (
     check_outputs,
@@ -48,6 +48,7 @@ from geoscaler.pipeline.arguments import (
     check_protocol,
     check_rules,
 )
+from geoscaler.pipeline.lit import LIT_SHARE, lit_stage_applies, train_lit
 from geoscaler.pipeline.rows import protocol_row, scored_row, validation_row
 from geoscaler.pipeline.shipping import (
     EVERY_MAP_FILTERS,
@@ -186,6 +187,7 @@ class _MethodRuns:
         clock: Clock,
         distances: Sequence[float] = (VALIDATION_DISTANCE,),
         protocol: int = 1,
+        plan: SizePlan | None = None,
     ):
         check_geometry(mesh, mesh.source_path or "the mesh")
         self.mesh, self.controller, self.clock = mesh, controller, clock
@@ -198,6 +200,7 @@ class _MethodRuns:
         self.to_run = listed if GAIN_REFERENCE in listed else [*listed, GAIN_REFERENCE]
         self.renderer = renderer or Renderer(mesh, self.options.device)
         self.protocol = protocol
+        self.plan = plan
         if protocol == 2 and self.renderer.evaluation.reference_max_size is not None:
             # protocol 2 compares with the maps as the user has them: no reference cap
             evaluation = replace(self.renderer.evaluation, reference_max_size=None)
@@ -249,8 +252,11 @@ class _MethodRuns:
         if budget is not None:
             seconds = remaining_budget(seconds, clock.now() - budget.started_at)
             reserve = budget.reserve
+        lit = lit_stage_applies(self.mesh, name, self.protocol)
+        lit_seconds = LIT_SHARE * seconds if lit and seconds is not None else 0.0
+        reserve_after = reserve + lit_seconds  # the lit stage's time follows the method
         context = RunContext(self.renderer, validation, self.controller,
-                             self.observer.on_event, seconds, reserve, clock)  # fmt: skip
+                             self.observer.on_event, seconds, reserve_after, clock)  # fmt: skip
         if budget is not None:
             self.renderer.reference_textures()  # made once, before a view is priced
             if not learned_fits(validation, seconds, reserve):
@@ -260,7 +266,19 @@ class _MethodRuns:
         if budget is not None and result.loop is not None:
             first = method_start - budget.started_at + result.loop.first_step_seconds
             result.first_step_after_start = round(first, 3)
-        return no_worse_than_filters(name, result, validation, outputs)
+        result = no_worse_than_filters(name, result, validation, outputs)
+        if lit and result.uvs is None:
+            after = validation.seconds_needed(0, caching=False)
+            stage = Budget(clock, method_start, seconds, reserve + after)
+            plan = self.plan or SizePlan(rule, rule, rule)
+            what = f"{name} x{rule.label}: lit views, seconds"
+            result = train_lit(
+                self.mesh, plan, name, result, outputs.get("lanczos"), stage,
+                str(self.renderer.device), self.options.seed, self.options.steps, self.controller,
+                lambda done, total: self.observer.stage(what, done, total),
+                self.renderer.evaluation,
+            )  # fmt: skip
+        return result
 
     def finish(self) -> Comparison:
         """The rows with their gains over bicubic, ordered by distance, scale, then the
@@ -352,6 +370,8 @@ def compare_on_validation(
     controller: Controller | None = None,
     budget: JobBudget | None = None,
     clock: Clock = WALL_CLOCK,
+    protocol: int = 1,
+    plan: SizePlan | None = None,
 ) -> Comparison:
     """Run ``methods`` at ``scale`` and score them on the validation's Q views, the ones the
     shipped result was chosen on (a downsampling job's report, inside its budget).
@@ -359,9 +379,13 @@ def compare_on_validation(
     As :func:`compare_mesh`, but under the whole job's ``budget`` (None: each learned method's
     own from its start): a learned method gets what is left of it and keeps the reserve and the
     time of the rows' scoring for after it; one that cannot take a step in what is left is not
-    run, and its Lanczos start ships (:func:`learned_fits`).
+    run, and its Lanczos start ships (:func:`learned_fits`). Under ``protocol`` 2 ``direct``
+    goes on through the lit stage (:mod:`geoscaler.pipeline.lit`) with ``plan``'s sizes for
+    every map (None: ``scale``'s); the rows stay unlit (protocol 1's Q), the lit stage's
+    scores are in the result's :attr:`~MethodResult.lit`.
     """
-    runs = _MethodRuns(mesh, [scale], methods, options, renderer, observer, controller, clock)
+    runs = _MethodRuns(mesh, [scale], methods, options, renderer, observer, controller, clock,
+                       protocol=protocol, plan=plan)  # fmt: skip
     (rule,) = runs.rules
     outputs, validation = runs.run_scale(rule, len(runs.to_run), budget)
     _cache_for_rows(validation, runs.options.time_budget, budget)
@@ -608,16 +632,18 @@ def downsample(
     controller: Controller | None = None,
     budget: JobBudget | None = None,
     clock: Clock = WALL_CLOCK,
+    protocol: int = 1,
+    plan: SizePlan | None = None,
 ) -> Downsampled:
     """Run ``method`` on ``mesh`` at ``scale`` (a whole number or a :class:`SizeRule`) and
     score it, bicubic and Lanczos on Q.
 
-    ``budget``, ``clock``: as :func:`compare_on_validation` (``budget`` None: the method's
-    budget counts from its own start).
+    ``budget``, ``clock``, ``protocol``, ``plan``: as :func:`compare_on_validation`
+    (``budget`` None: the method's budget counts from its own start).
     """
     methods = [method, *(name for name in REPORT_BASELINES if name != method)]
     comparison = compare_on_validation(
-        mesh, scale, methods, options, renderer, observer, controller, budget, clock
+        mesh, scale, methods, options, renderer, observer, controller, budget, clock, protocol, plan
     )
     (rule,) = check_rules([scale])
     result = comparison.outputs[method, rule.label]

@@ -260,12 +260,12 @@ def asset_of(
     mesh: TexturedMesh, result: MethodResult, plan: SizePlan, method: str
 ) -> tuple[TexturedMesh, list[ShippedMap]]:
     """The asset as it ships for a method's result: its base colours and UVs (in a new
-    layout every other map re-baked into it, :func:`relayout_maps`), every other map at its
-    class's size (:func:`ship_asset`)."""
+    layout every other map re-baked into it, :func:`relayout_maps`), the maps it made itself
+    (:attr:`MethodResult.maps`), every other map at its class's size (:func:`ship_asset`)."""
     uvs = mesh.uvs if result.uvs is None else result.uvs
-    premade = {}
+    premade = dict(result.maps or {})
     if result.layout is not None:
-        premade = relayout_maps(mesh, result.layout, plan)
+        premade.update(relayout_maps(mesh, result.layout, plan))
         mesh = without_stale_tangents(mesh, result.layout)
     return ship_asset(mesh.with_uvs(uvs), plan, result.textures, method, premade)
 

@@ -209,6 +209,8 @@ def method_details(result: MethodResult) -> dict[str, Any]:
         details.update(_shipping_details(result.shipping))
     if result.first_step_after_start is not None:
         details["first_step_after_start"] = result.first_step_after_start
+    if result.lit is not None:
+        details["lit"] = asdict(result.lit)
     return details
 
 
@@ -353,6 +355,28 @@ def _validation_lines(method: str, details: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _lit_lines(lit: dict[str, Any] | None) -> list[str]:
+    """What the lit stage (protocol 2) did: its steps, and lit PSNR-fg of what shipped beside
+    the start and the baselines it was chosen among."""
+    if not lit:
+        return []
+    scores = {"shipped": lit["validation_scores"], **lit["baseline_scores"]}
+    sets = list(lit["validation_scores"])
+    chosen = " / ".join(_decibels(lit["validation_scores"].get(name)) for name in sets)
+    others = "; ".join(
+        f"{name} " + " / ".join(_decibels(values.get(name_)) for name_ in sets)
+        for name, values in scores.items()
+        if name != "shipped"
+    )
+    return [
+        f"lit (protocol 2): every map trained further through lit views, {lit['steps']} steps "
+        f"(best at step {lit['best_step']}), stopped by {lit['stopped_by']}; shipped "
+        f"{lit['shipped']}",
+        f"  lit PSNR-fg on {lit['validation_views']} views a set ({' / '.join(sets)}): shipped "
+        f"{chosen}; {others}",
+    ]
+
+
 def _decibels(value: float | None) -> str:
     """A PSNR for the report; None (a set whose views saw none of the mesh): n/a."""
     return "n/a" if value is None else f"{value:.2f}"
@@ -397,6 +421,7 @@ def format_report(document: dict[str, Any]) -> str:
             f"{details['shipped']}, unvalidated; give a larger --time-budget"
         )
     lines.extend(_validation_lines(document["method"], details))
+    lines.extend(_lit_lines(details.get("lit")))
     lines.extend(_layout_lines(document["method"], details))
     lines.extend(_maps_lines(document))
     return "\n".join(lines)

@@ -1,0 +1,108 @@
+"""The job's lit stage: under protocol 2, ``direct``'s asset trained further through lit views.
+
+``direct`` optimises the base colours through unlit views, cheaply (a pixel is a fixed sum of
+texels). Under protocol 2 the job then gives every lit map of the asset as it would ship
+(those base colours, the other maps by their class, Toksvig roughness) to
+:func:`geoscaler.optim.lit.optimize_lit` for the rest of the method's time: :data:`LIT_SHARE`
+of it. What ships is the best, on lit Q, near and far views, of the trained maps, that start,
+the class filters with Lanczos base colours, and every map resized by Lanczos or by bicubic
+(protocol 2's baselines).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+
+from geoscaler.clock import Budget
+from geoscaler.mesh import BASE_COLOR, TexturedMesh
+from geoscaler.methods import MethodResult, Shipping
+from geoscaler.optim.events import Controller
+from geoscaler.optim.lit import TRAINED, LitSettings, optimize_lit
+from geoscaler.pipeline.shipping import every_map_by, ship_asset
+from geoscaler.protocol import Evaluation
+from geoscaler.render.lit import METALLIC_ROUGHNESS, NORMAL, default_protocol, lit_maps
+from geoscaler.resize.sizes import SizePlan
+
+LIT_METHODS = ("direct",)
+"""Methods whose result the lit stage trains further (their parameters are the texels)."""
+LIT_SHARE = 0.5
+"""Share of a learned method's time budget the lit stage gets after it: lit steps cost about
+four times an unlit one, and the unlit steps reach the base colours' largest gains first
+(``benchmarks/lit_maps.py``; see docs/decisions/lit-stage.md)."""
+LIT_STEPS = 100
+"""Steps of the lit stage where the job has no time budget."""
+CLASS_FILTERS = "class filters"
+"""The baseline with Lanczos base colours and every other map by its class (Toksvig)."""
+
+
+def lit_stage_applies(mesh: TexturedMesh, name: str, protocol: int) -> bool:
+    """Whether method ``name``'s result on ``mesh`` goes through the lit stage: under
+    protocol 2, for :data:`LIT_METHODS`, where a material has a normal or metallic-roughness
+    map of three or more channels on the UVs lit renders read."""
+    if protocol != 2 or name not in LIT_METHODS or default_protocol(mesh) != 2:
+        return False
+    return any(
+        slot in (NORMAL, METALLIC_ROUGHNESS) and pixels.ndim == 3 and pixels.shape[2] >= 3
+        for material in mesh.materials
+        for slot, pixels in lit_maps(material).items()
+    )
+
+
+def train_lit(
+    mesh: TexturedMesh,
+    plan: SizePlan,
+    name: str,
+    result: MethodResult,
+    lanczos: MethodResult | None,
+    budget: Budget,
+    device: str | None,
+    seed: int = 0,
+    steps: int | None = None,
+    controller: Controller | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    evaluation: Evaluation | None = None,
+) -> MethodResult:
+    """``result`` (in the mesh's own layout) after the lit stage: its base colours and the
+    maps the stage chose (:attr:`MethodResult.maps`), with :attr:`MethodResult.lit`.
+
+    Args:
+        mesh: the original asset.
+        plan: the size rule of each texture class.
+        name: the learned method.
+        result: its result, as the job would ship it.
+        lanczos: the Lanczos filter's result (the class-filters baseline's base colours; None:
+            no such baseline).
+        budget: the stage's time (unlimited: :data:`LIT_STEPS` steps).
+        device: where it trains.
+        seed: seeds the training cameras.
+        steps: at most this many steps (the user's ``--steps``, as the method's); None: the
+            budget's end, or :data:`LIT_STEPS` without one.
+        controller: stops the stage (its best so far ships) or pauses it.
+        progress: ``progress(done, total)`` after each step (:func:`optimize_lit`).
+        evaluation: the validation views' size (default: the protocol's).
+    """
+    start = ship_asset(mesh, plan, result.textures, "direct")[0]
+    baselines = {f: every_map_by(mesh, plan, f) for f in ("lanczos", "bicubic")}
+    if lanczos is not None:
+        baselines[CLASS_FILTERS] = ship_asset(mesh, plan, lanczos.textures, "lanczos")[0]
+    steps = steps or (None if budget.limited else LIT_STEPS)
+    settings = LitSettings(steps=steps, seed=seed)
+    best, facts = optimize_lit(
+        mesh, start, baselines, budget, settings, device, controller, progress, evaluation
+    )
+    how = {
+        TRAINED: "trained through lit views (protocol 2)",
+        "start": "by its class, chosen on lit views",
+    }.get(facts.shipped, f"{facts.shipped} (every map), chosen on lit views")
+    maps = {}
+    for (original, places), (made, _) in zip(mesh.images(), best.images(), strict=True):
+        material, slot = places[0]
+        if slot != BASE_COLOR and made is not original:
+            maps[id(original)] = (made, how)
+    textures = [m.base_color_texture for m in best.materials]
+    shipped = {TRAINED: name, "start": result.shipped(name), CLASS_FILTERS: "lanczos"}.get(
+        facts.shipped, f"{facts.shipped} (every map)"
+    )
+    shipping = replace(result.shipping or Shipping(name), shipped=shipped)
+    return replace(result, textures=textures, maps=maps, lit=facts, shipping=shipping)

@@ -1,0 +1,168 @@
+"""Lit optimisation (protocol 2): the trainable maps, the loop's promises, and the job's lit
+stage after ``direct``."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from mesh_support import pbr_demo
+
+from geoscaler.clock import Budget, ManualClock
+from geoscaler.io import load_mesh, save_mesh
+from geoscaler.optim.events import Controller
+from geoscaler.optim.lit import TRAINED, LitMaps, LitSettings, optimize_lit
+from geoscaler.pipeline.shipping import every_map_by
+from geoscaler.protocol import Evaluation
+from geoscaler.render.lit import NORMAL
+from geoscaler.resize.sizes import SizePlan, SizeRule
+
+QUICK = Evaluation.quick((0, 31), image_size=48)
+PLAN = SizePlan(SizeRule(scale=4), SizeRule(scale=4), SizeRule(scale=4))
+FEW = LitSettings(steps=12, validation_views=2, pool_views=4, views_per_step=2, lr=0.01)
+
+
+@pytest.fixture(scope="module")
+def mesh():
+    return pbr_demo(texture_size=64, subdivisions=6)
+
+
+def flat_start(mesh):
+    """Every map at a quarter of its size, flat: grey base colour, a flat normal map, mid
+    roughness: a start far from the original that training must improve."""
+    replacements = {}
+    for pixels, places in mesh.images():
+        slot = places[0][1]
+        value = {NORMAL: (128, 128, 255), "metallicRoughnessTexture": (0, 128, 0)}
+        out = np.empty((16, 16, pixels.shape[2]), np.uint8)
+        out[...] = 255
+        out[..., :3] = value.get(slot, (128, 128, 128))
+        replacements[id(pixels)] = out
+    return mesh.with_images(replacements)
+
+
+def unlimited():
+    return Budget(ManualClock(), 0.0)
+
+
+def test_maps_keep_normals_unit_and_facing_out_and_values_in_range(mesh):
+    maps = LitMaps(flat_start(mesh), "cpu")
+    with torch.no_grad():
+        for values in maps.values.values():
+            values.add_(torch.linspace(-2, 2, values.numel()).reshape(values.shape))
+    maps.project()
+    (normal,) = (maps.values[k] for k in maps.normal)
+    vector = 2 * normal - 1
+    torch.testing.assert_close(vector.norm(dim=-1), torch.ones(16, 16))
+    assert float(vector[..., 2].min().detach()) >= 0
+    assert all(0 <= float(v.min().detach()) and float(v.max().detach()) <= 1
+               for v in maps.values.values())  # fmt: skip
+
+
+def test_maps_write_8_bits_and_read_them_back(mesh):
+    start = flat_start(mesh)
+    maps = LitMaps(start, "cpu")
+    with torch.no_grad():
+        for values in maps.values.values():
+            values.copy_(torch.rand(values.shape, generator=torch.Generator().manual_seed(1)))
+    asset = maps.asset()
+    for pixels, _ in asset.images():
+        assert pixels.dtype == np.uint8 and pixels.shape == (16, 16, 3)
+    base = asset.materials[0].base_color_texture
+    stored = maps.values[id(start.materials[0].base_color_texture)]
+    np.testing.assert_array_equal(base, stored.mul(255).round().byte().numpy())  # sRGB codes
+    before = [v.clone() for v in maps.values.values()]
+    with torch.no_grad():
+        for values in maps.values.values():
+            values.zero_()
+    maps.restore(asset)
+    for mine, old in zip(maps.values.values(), before, strict=True):
+        torch.testing.assert_close(mine, old.mul(255).round() / 255)
+
+
+def test_training_improves_a_flat_start_on_every_set(mesh):
+    start = flat_start(mesh)
+    best, facts = optimize_lit(mesh, start, {}, unlimited(), FEW, "cpu", evaluation=QUICK)
+    assert facts.steps == 12 and facts.stopped_by == "steps"
+    assert facts.shipped == TRAINED and facts.best_step > 0
+    start_scores = facts.baseline_scores["start"]
+    for name in ("Q", "near", "far"):
+        assert facts.validation_scores[name] > start_scores[name] + 0.5
+    assert best is not start
+
+
+def test_what_returns_is_never_below_the_best_baseline_on_any_set(mesh):
+    lanczos = every_map_by(mesh, PLAN, "lanczos")
+    settings = LitSettings(steps=3, validation_views=2, pool_views=2, views_per_step=1)
+    best, facts = optimize_lit(
+        mesh, flat_start(mesh), {"lanczos": lanczos}, unlimited(), settings, "cpu",
+        evaluation=QUICK,
+    )  # fmt: skip
+    # three steps from a flat start cannot reach Lanczos: Lanczos ships, and says so
+    assert facts.shipped == "lanczos" and best is lanczos and facts.clears_floor
+    assert facts.validation_scores == facts.baseline_scores["lanczos"]
+
+
+def test_a_stopped_controller_or_a_spent_budget_takes_no_step(mesh):
+    start = flat_start(mesh)
+    controller = Controller()
+    controller.stop()
+    best, facts = optimize_lit(
+        mesh, start, {}, unlimited(), FEW, "cpu", controller, evaluation=QUICK
+    )
+    assert (facts.steps, facts.stopped_by, facts.shipped) == (0, "stopped", "start")
+    assert best is start
+    clock = ManualClock()
+    spent = Budget(clock, -10.0, 5.0)
+    _, facts = optimize_lit(mesh, start, {}, spent, FEW, "cpu", evaluation=QUICK)
+    assert (facts.steps, facts.stopped_by) == (0, "time budget")
+
+
+def test_the_training_pool_stops_growing_at_its_memory(mesh):
+    settings = LitSettings(steps=6, validation_views=2, pool_views=6, views_per_step=1,
+                           view_memory=1)  # fmt: skip
+    _, facts = optimize_lit(mesh, flat_start(mesh), {}, unlimited(), settings, "cpu",
+                            evaluation=QUICK)  # fmt: skip
+    assert facts.training_views == 1  # the least a step needs, nothing more
+
+
+def test_downsample_under_protocol_2_ships_every_map_trained_lit(tmp_path, capsys):
+    from geoscaler.cli import main
+
+    source = tmp_path / "pbr.glb"
+    save_mesh(pbr_demo(texture_size=64, subdivisions=6), source)
+    out = tmp_path / "out.gltf"
+    argv = ["downsample", str(source), "-o", str(out), "--scale", "4", "--steps", "4",
+            "--device", "cpu", "--report", str(tmp_path / "r.json")]  # fmt: skip
+    assert main(argv, evaluation=QUICK) == 0
+    printed = capsys.readouterr().out
+    assert "lit (protocol 2): every map trained further through lit views" in printed
+    report = json.loads((tmp_path / "r.json").read_text())
+    lit = report["details"]["lit"]
+    assert lit["steps"] == 4 and set(lit["baseline_scores"]) == {
+        "start", "lanczos", "bicubic", "class filters",
+    }  # fmt: skip
+    methods = {m["slots"][0].split("/")[1]: m["method"] for m in report["maps"]}
+    chosen = lit["shipped"]
+    if chosen == TRAINED:
+        assert methods[NORMAL] == "trained through lit views (protocol 2)"
+    assert lit["clears_floor"]
+    shipped = load_mesh(out)
+    assert shipped.materials[0].maps[NORMAL].shape[:2] == (16, 16)
+
+
+def test_downsample_under_protocol_1_leaves_the_other_maps_to_their_class(tmp_path):
+    from geoscaler.cli import main
+
+    source = tmp_path / "pbr.glb"
+    save_mesh(pbr_demo(texture_size=64, subdivisions=6), source)
+    argv = ["downsample", str(source), "-o", str(tmp_path / "out.glb"), "--scale", "4",
+            "--steps", "2", "--device", "cpu", "--protocol", "1",
+            "--report", str(tmp_path / "r.json")]  # fmt: skip
+    assert main(argv, evaluation=QUICK) == 0
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert "lit" not in report["details"]
+    methods = [m["method"] for m in report["maps"]]
+    assert not any("lit views" in method for method in methods)
