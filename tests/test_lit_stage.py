@@ -82,6 +82,14 @@ def test_maps_write_8_bits_and_read_them_back(mesh):
         torch.testing.assert_close(mine, old.mul(255).round() / 255)
 
 
+def test_kept_slots_are_not_trained(mesh):
+    start = flat_start(mesh)
+    maps = LitMaps(start, "cpu", kept=("baseColorTexture",))
+    base = start.materials[0].base_color_texture
+    assert id(base) not in maps.values and len(maps.values) == 2
+    assert maps.asset().materials[0].base_color_texture is base
+
+
 def test_training_improves_a_flat_start_on_every_set(mesh):
     start = flat_start(mesh)
     best, facts = optimize_lit(mesh, start, {}, unlimited(), FEW, "cpu", evaluation=QUICK)
@@ -153,16 +161,23 @@ def test_downsample_under_protocol_2_ships_every_map_trained_lit(tmp_path, capsy
     assert shipped.materials[0].maps[NORMAL].shape[:2] == (16, 16)
 
 
-def test_downsample_under_protocol_1_leaves_the_other_maps_to_their_class(tmp_path):
+def test_protocol_1_leaves_the_other_maps_to_their_class_and_2_keeps_its_base_colour(tmp_path):
     from geoscaler.cli import main
 
     source = tmp_path / "pbr.glb"
     save_mesh(pbr_demo(texture_size=64, subdivisions=6), source)
-    argv = ["downsample", str(source), "-o", str(tmp_path / "out.glb"), "--scale", "4",
-            "--steps", "2", "--device", "cpu", "--protocol", "1",
-            "--report", str(tmp_path / "r.json")]  # fmt: skip
-    assert main(argv, evaluation=QUICK) == 0
-    report = json.loads((tmp_path / "r.json").read_text())
+    outputs = {}
+    for protocol in ("1", "2"):
+        out = tmp_path / f"out{protocol}.glb"
+        argv = ["downsample", str(source), "-o", str(out), "--scale", "4", "--steps", "4",
+                "--device", "cpu", "--protocol", protocol,
+                "--report", str(tmp_path / f"r{protocol}.json")]  # fmt: skip
+        assert main(argv, evaluation=QUICK) == 0
+        outputs[protocol] = load_mesh(out)
+    report = json.loads((tmp_path / "r1.json").read_text())
     assert "lit" not in report["details"]
-    methods = [m["method"] for m in report["maps"]]
-    assert not any("lit views" in method for method in methods)
+    assert not any("lit views" in facts["method"] for facts in report["maps"])
+    # the lit stage trains the maps only light shows; the base colour is direct's, unlit
+    unlit, lit = (outputs[p].materials[0] for p in ("1", "2"))
+    np.testing.assert_array_equal(lit.base_color_texture, unlit.base_color_texture)
+    assert not np.array_equal(lit.maps[NORMAL], unlit.maps[NORMAL])

@@ -70,6 +70,7 @@ class LitSettings:
             512's on the development meshes tried (docs/decisions/lit-stage.md).
         view_memory: bytes the training pool and the validation sets may hold together: past
             them the pool stops growing (None: no limit).
+        kept: slots whose maps are not trained (:class:`LitMaps`).
         validation_views: views of each of the Q, near and far sets.
         validate_every: steps between validations (and the last step).
         backtrack: factor on the rate when a validated candidate ranks below the best.
@@ -85,6 +86,7 @@ class LitSettings:
     cached_per_step: int = 2
     training_share: float = 0.75
     view_memory: int | None = VIEW_MEMORY
+    kept: tuple[str, ...] = ()
     validation_views: int = 8
     validate_every: int = STEPS_PER_VALIDATION
     backtrack: float = 0.5
@@ -128,9 +130,12 @@ class LitMaps:
     Args:
         asset: the start; its lit images of 3 or more channels are trained (grey ones kept).
         device: where the tensors live.
+        kept: slots whose images stay as they are (an image another slot trains is trained).
     """
 
-    def __init__(self, asset: TexturedMesh, device: torch.device | str):
+    def __init__(
+        self, asset: TexturedMesh, device: torch.device | str, kept: Sequence[str] = ()
+    ):
         self.start = asset
         self.values: dict[int, torch.Tensor] = {}  # id(image) -> (h, w, 3) stored values
         self.images: dict[int, np.ndarray] = {}
@@ -138,7 +143,7 @@ class LitMaps:
         self.normal: set[int] = set()
         for material in asset.materials:
             for slot, pixels in lit_maps(material).items():
-                if pixels.ndim != 3 or pixels.shape[2] < 3:
+                if pixels.ndim != 3 or pixels.shape[2] < 3 or slot in kept:
                     continue
                 key = id(pixels)
                 if key not in self.values:
@@ -234,7 +239,7 @@ class _LitRun:
         self.device = renderer.device
         scene = LitScene(renderer)
         reference = lit_materials(original, self.device)
-        self.maps = LitMaps(start, self.device)
+        self.maps = LitMaps(start, self.device, settings.kept)
         sizes = map_sizes(self.maps.materials())
         self.sets = validation_sets(scene, reference, sizes, settings.validation_views)
         for views in self.sets.values():
