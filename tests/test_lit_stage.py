@@ -13,7 +13,7 @@ from mesh_support import pbr_demo
 from geoscaler.clock import Budget, ManualClock
 from geoscaler.io import load_mesh, save_mesh
 from geoscaler.optim.events import Controller
-from geoscaler.optim.lit import TRAINED, LitMaps, LitSettings, optimize_lit
+from geoscaler.optim.lit import NOT_AFFORDED, TRAINED, LitMaps, LitSettings, optimize_lit
 from geoscaler.pipeline.shipping import every_map_by
 from geoscaler.protocol import Evaluation
 from geoscaler.render.lit import NORMAL
@@ -122,10 +122,34 @@ def test_a_stopped_controller_or_a_spent_budget_takes_no_step(mesh):
     )
     assert (facts.steps, facts.stopped_by, facts.shipped) == (0, "stopped", "start")
     assert best is start
-    clock = ManualClock()
-    spent = Budget(clock, -10.0, 5.0)
-    _, facts = optimize_lit(mesh, start, {}, spent, FEW, "cpu", evaluation=QUICK)
-    assert (facts.steps, facts.stopped_by) == (0, "time budget")
+    spent = Budget(ManualClock(), -10.0, 5.0)
+    best, facts = optimize_lit(mesh, start, {}, spent, FEW, "cpu", evaluation=QUICK)
+    assert (facts.steps, facts.stopped_by, best) == (0, NOT_AFFORDED, start)
+    assert not facts.validation_scores and not facts.clears_floor
+
+
+class SlowClock(ManualClock):
+    """A clock that moves a second every time it is read: every view, score and step costs
+    one second, whatever the machine."""
+
+    def now(self) -> float:
+        self.advance(1.0)
+        return super().now()
+
+
+def test_the_loop_runs_only_where_the_budget_holds_its_set_up_and_a_few_steps(mesh):
+    start = flat_start(mesh)
+    settings = LitSettings(validation_views=2, pool_views=4, views_per_step=2)
+    # 2 + 2 + 2 views, each with the start scored there: 6 x (1 + 1) s, and 5 steps of 2 views
+    clock = SlowClock()
+    _, facts = optimize_lit(mesh, start, {}, Budget(clock, clock.now(), 20.0), settings,
+                            "cpu", evaluation=QUICK)  # fmt: skip
+    assert facts.stopped_by == NOT_AFFORDED
+    clock = SlowClock()
+    budget = Budget(clock, clock.now(), 60.0)
+    _, facts = optimize_lit(mesh, start, {}, budget, settings, "cpu", evaluation=QUICK)
+    assert facts.stopped_by == "time budget" and facts.steps > 0
+    assert budget.left() >= -1.0  # at most the last reading's second past the end
 
 
 def test_the_training_pool_stops_growing_at_its_memory(mesh):
@@ -181,3 +205,14 @@ def test_protocol_1_leaves_the_other_maps_to_their_class_and_2_keeps_its_base_co
     unlit, lit = (outputs[p].materials[0] for p in ("1", "2"))
     np.testing.assert_array_equal(lit.base_color_texture, unlit.base_color_texture)
     assert not np.array_equal(lit.maps[NORMAL], unlit.maps[NORMAL])
+
+
+def test_a_method_the_lit_stage_does_not_follow_says_so(tmp_path, capsys):
+    from geoscaler.cli import main
+
+    source = tmp_path / "pbr.glb"
+    save_mesh(pbr_demo(texture_size=64, subdivisions=6), source)
+    argv = ["downsample", str(source), "-o", str(tmp_path / "out.glb"), "--scale", "4",
+            "--method", "lanczos", "--device", "cpu"]  # fmt: skip
+    assert main(argv, evaluation=QUICK) == 0
+    assert "lit (protocol 2): not run: the lit stage follows direct only" in capsys.readouterr().out

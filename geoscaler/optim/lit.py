@@ -10,15 +10,16 @@ surface after every step. Adam minimises the mean squared error of lit sRGB rend
 views against the full-resolution original's (:class:`~geoscaler.render.lit_views.LitViews`).
 
 Candidates are validated as they ship (8-bit) on lit Q, near and far sets; the floor is the
-best of the *baselines* on each set (the filters resizing every map, the start), and what
-:func:`optimize_lit` returns is the candidate or baseline :class:`~geoscaler.optim.floor.Floor`
-ranks first, so the result is never below the best baseline on any set beyond the floor's
-noise margin, whatever the training did. A validated candidate below the best sends the maps
+best of the caller's *baselines* on each set (filters' assets), and what :func:`optimize_lit`
+returns is what :class:`~geoscaler.optim.floor.Floor` ranks first of the trained maps, the
+start and the baselines, so the result is never below the best baseline on any set beyond the
+floor's noise margin, whatever the training did. A validated candidate below the best sends the maps
 back to the best at a lower rate.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
@@ -50,7 +51,10 @@ from geoscaler.render.texture import MipTexture
 
 TRAINED = "lit"
 """What :class:`LitFacts` calls the trained maps (beside the baselines' names)."""
-STEPS_PER_VALIDATION = 10
+LEAST_STEPS = 5
+"""Steps the budget must hold besides the validation's set-up for the loop to run at all."""
+NOT_AFFORDED = "the time left cannot hold the lit views' set-up and a few steps"
+"""``stopped_by`` of a run that did not start: the start ships, not validated lit."""
 
 
 @dataclass(frozen=True)
@@ -88,7 +92,7 @@ class LitSettings:
     view_memory: int | None = VIEW_MEMORY
     kept: tuple[str, ...] = ()
     validation_views: int = 8
-    validate_every: int = STEPS_PER_VALIDATION
+    validate_every: int = 10
     backtrack: float = 0.5
     caching_share: float = 0.4
     steps: int | None = None
@@ -106,8 +110,9 @@ class LitFacts:
         validation_scores: set name -> mean lit PSNR-fg (dB) of what is returned.
         baseline_scores: name -> its scores per set (the start among them).
         clears_floor: the returned asset is no worse than the best baseline on every set.
-        stopped_by: ``"time budget"``, ``"steps"``, ``"stopped"`` (the controller) or
-            ``"nothing to train"``.
+        stopped_by: ``"time budget"``, ``"steps"``, ``"stopped"`` (the controller),
+            ``"nothing to train"`` or :data:`NOT_AFFORDED` (then nothing was validated lit:
+            the start is returned, with no scores).
         training_views: training views cached; validation_views: views of each set.
         backtracks: times the maps went back to the best.
     """
@@ -150,8 +155,10 @@ class LitMaps:
                     stored = torch.from_numpy(pixels[..., :3].astype(np.float32) / 255.0)
                     self.values[key] = stored.to(device).requires_grad_(True)
                     self.images[key] = pixels
-                (self.colour if slot in SRGB_SLOTS else self.normal if slot == NORMAL else set()
-                 ).add(key)  # fmt: skip
+                if slot in SRGB_SLOTS:
+                    self.colour.add(key)
+                elif slot == NORMAL:
+                    self.normal.add(key)
         self.fixed = lit_materials(asset, device, encoded=False)
 
     def parameters(self) -> list[torch.Tensor]:
@@ -242,13 +249,10 @@ class _LitRun:
         self.maps = LitMaps(start, self.device, settings.kept)
         sizes = map_sizes(self.maps.materials())
         self.sets = validation_sets(scene, reference, sizes, settings.validation_views)
-        for views in self.sets.values():
-            while views.cache_next():
-                pass
         self.candidates = {"start": start, **baselines}
-        self.scores = {name: self.score(asset) for name, asset in self.candidates.items()}
-        self.floor = Floor({k: v for k, v in self.scores.items() if k != "start"}, SET_NAMES)
-        self.trained, self.trained_rank = start, self.floor.rank(self.scores["start"])
+        self.scores: dict[str, Scores] = {}
+        self.floor = Floor({}, SET_NAMES)
+        self.trained, self.trained_rank = start, (-math.inf, -math.inf)
         cameras = sample_training_cameras(settings.pool_views, settings.seed, TRAINING_RANGES)
         side = max(1, round(settings.training_share * evaluation.image_size))
         training = replace(evaluation, image_size=side)
@@ -256,6 +260,31 @@ class _LitRun:
         self.pool = LitViews(training_scene, reference, sizes, cameras)
         self.optimiser = AdamW(self.maps.parameters(), lr=settings.lr, weight_decay=0.0)
         self.facts = LitFacts(validation_views=settings.validation_views)
+
+    def affordable(self, budget: Budget) -> bool:
+        """Cache the first Q view and time it and the start's score there: whether ``budget``
+        holds caching every validation view, scoring every candidate on them and
+        :data:`LEAST_STEPS` steps (each priced as a view per training view)."""
+        clock, q = budget.clock, self.sets["Q"]
+        began = clock.now()
+        q.cache_next()
+        view_seconds = clock.now() - began
+        began = clock.now()
+        q.psnr(lit_materials(self.candidates["start"], self.device, encoded=False), count=1)
+        score_seconds = clock.now() - began
+        views = sum(len(v.cameras) for v in self.sets.values())
+        setup = views * (view_seconds + len(self.candidates) * score_seconds)
+        steps = LEAST_STEPS * self.settings.views_per_step * view_seconds
+        return budget.fits(setup + steps)
+
+    def begin(self) -> None:
+        """Cache the validation views, score the start and the baselines, set the floor."""
+        for views in self.sets.values():
+            while views.cache_next():
+                pass
+        self.scores = {name: self.score(asset) for name, asset in self.candidates.items()}
+        self.floor = Floor({k: v for k, v in self.scores.items() if k != "start"}, SET_NAMES)
+        self.trained_rank = self.floor.rank(self.scores["start"])
         self.facts.baseline_scores = {name: dict(s) for name, s in self.scores.items()}
 
     def memory_left(self) -> bool:
@@ -336,10 +365,16 @@ def optimize_lit(
     evaluation = replace(evaluation or Evaluation(), reference_max_size=None)
     run = _LitRun(original, start, baselines, settings, device, evaluation)
     facts = run.facts
-    facts.stopped_by = "nothing to train" if not run.maps.values else "steps"
+    if not run.maps.values:
+        facts.stopped_by, facts.clears_floor = "nothing to train", False
+        return start, facts
+    if budget.limited and not run.affordable(budget):
+        facts.stopped_by, facts.clears_floor = NOT_AFFORDED, False
+        return start, facts
+    run.begin()
     step_seconds = validation_seconds = 0.0
     caching_end = clock.now() + settings.caching_share * budget.left()
-    while run.maps.values and (settings.steps is None or facts.steps < settings.steps):
+    while settings.steps is None or facts.steps < settings.steps:
         if controller is not None:
             controller.wait_while_paused()
             if controller.stopped:

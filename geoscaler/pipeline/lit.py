@@ -1,12 +1,12 @@
 """The job's lit stage: under protocol 2, ``direct``'s asset trained further through lit views.
 
 ``direct`` optimises the base colours through unlit views, cheaply (a pixel is a fixed sum of
-texels). Under protocol 2 the job then gives every lit map of the asset as it would ship
-(those base colours, the other maps by their class, Toksvig roughness) to
-:func:`geoscaler.optim.lit.optimize_lit` for the rest of the method's time: :data:`LIT_SHARE`
-of it. What ships is the best, on lit Q, near and far views, of the trained maps, that start,
-the class filters with Lanczos base colours, and every map resized by Lanczos or by bicubic
-(protocol 2's baselines).
+texels). Under protocol 2 the job keeps :data:`LIT_SHARE` of the method's time for this stage:
+the asset as it would ship (those base colours, the other maps by their class, Toksvig
+roughness) goes to :func:`geoscaler.optim.lit.optimize_lit`, which trains the maps only light
+shows (normal, metallic-roughness, occlusion; :data:`KEPT` stay). What ships is the best, on
+lit Q, near and far views, of the trained maps, that start, the class filters with Lanczos base
+colours, and every map resized by Lanczos or by bicubic (protocol 2's baselines).
 """
 
 from __future__ import annotations
@@ -33,9 +33,9 @@ from geoscaler.resize.sizes import SizePlan
 LIT_METHODS = ("direct",)
 """Methods whose result the lit stage trains further (their parameters are the texels)."""
 LIT_SHARE = 0.5
-"""Share of a learned method's time budget the lit stage gets after it: lit steps cost about
-four times an unlit one, and the unlit steps reach the base colours' largest gains first
-(``benchmarks/lit_maps.py``; see docs/decisions/lit-stage.md)."""
+"""Share of a learned method's time budget kept for the lit stage after it: a lit step costs 4
+to 10 times an unlit one, and the unlit steps reach the base colours' largest gains first
+(docs/decisions/lit-stage.md)."""
 LIT_STEPS = 100
 """Steps of the lit stage where the job has no time budget."""
 KEPT = (BASE_COLOR, EMISSIVE)
@@ -101,6 +101,8 @@ def train_lit(
     best, facts = optimize_lit(
         mesh, start, baselines, budget, settings, device, controller, progress, evaluation
     )
+    if not facts.validation_scores:  # not run: the maps ship by their class, as unlit
+        return replace(result, lit=facts)
     how = {
         TRAINED: "trained through lit views (protocol 2)",
         "start": "by its class, chosen on lit views",

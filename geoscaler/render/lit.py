@@ -462,8 +462,8 @@ def _material_surface(view: LitView, material: LitMaterial, hit: torch.Tensor | 
         return t if hit is None else t.index_select(-1, hit)
 
     footprint = UVFootprint(*(pick(t) for t in view.footprint))
-    frame = shading_frame(*(pick(t) for t in (view.geometric, view.tangent, view.handedness)),
-                          pick(view.view))  # fmt: skip
+    geometry = (view.geometric, view.tangent, view.handedness, view.view)
+    frame = shading_frame(*(pick(t) for t in geometry))
 
     def sampled(slot: str) -> torch.Tensor | None:
         chain = material.maps.get(slot)

@@ -189,17 +189,13 @@ class LitViews:
     @torch.no_grad()
     def psnr(self, materials: Sequence[LitMaterial], count: int | None = None) -> np.ndarray:
         """``(count,)`` PSNR-fg (dB) of a candidate on the first ``count`` cached views (all
-        by default): :func:`~geoscaler.render.metrics.psnr_fg` of its lit render."""
+        by default): :func:`~geoscaler.render.metrics.psnr_fg` of its lit render, over the
+        object's pixels (the foreground) as a ``1 x F`` image."""
         count = len(self.views) if count is None else count
         values = []
-        side = self.scene.renderer.image_size
         for index in range(count):
-            view = self.views[index]
-            image = view.reference.new_zeros(side * side, 3)
-            reference, foreground = image.clone(), torch.zeros_like(image[:, 0], dtype=torch.bool)
-            image[view.pixels] = self.colours(index, materials)
-            reference[view.pixels], foreground[view.pixels] = view.reference, True
-            shape = (1, side, side)
-            values.append(float(psnr_fg(image.view(*shape, 3), reference.view(*shape, 3),
-                                        foreground.view(shape))[0]))  # fmt: skip
+            reference = self.views[index].reference[None, None]  # (1, 1, F, 3)
+            image = self.colours(index, materials)[None, None]
+            foreground = torch.ones(reference.shape[:3], dtype=torch.bool, device=image.device)
+            values.append(float(psnr_fg(image, reference, foreground)[0]))
         return np.asarray(values)

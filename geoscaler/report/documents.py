@@ -21,6 +21,7 @@ from geoscaler.methods import LayoutFacts, LoopFacts, MethodResult, Shipping
 from geoscaler.optim.loop import INVISIBLE_PSNR_FG, NOTHING_TO_GAIN
 from geoscaler.pipeline.downsampling import Job
 from geoscaler.pipeline.job import Comparison, Downsampled
+from geoscaler.pipeline.lit import LIT_METHODS
 from geoscaler.pipeline.rows import texture_facts
 from geoscaler.pipeline.shipping import ShippedMap
 from geoscaler.protocol import PROTOCOL, VALIDATION_DISTANCE
@@ -183,7 +184,7 @@ def report_document(
             "device": describe_device(done.comparison.device),
             "seconds": round(seconds, 3),
             "results": done.rows,
-            "details": downsample_details(done),
+            "details": {**downsample_details(done), **lit_skipped(job, done)},
             "maps": [map_facts(shipped) for shipped in done.maps],
             "totals": asset_totals(job.mesh.source_files, written, done.maps),
         }
@@ -212,6 +213,21 @@ def method_details(result: MethodResult) -> dict[str, Any]:
     if result.lit is not None:
         details["lit"] = asdict(result.lit)
     return details
+
+
+def lit_skipped(job: Job, done: Downsampled) -> dict[str, str]:
+    """``{"lit_skipped": why}`` where a protocol-2 job's lit stage did not follow its method
+    (:mod:`geoscaler.pipeline.lit`); empty where it did, or under protocol 1."""
+    if job.protocol != 2 or done.result.lit is not None:
+        return {}
+    if job.method not in LIT_METHODS:
+        methods = ", ".join(LIT_METHODS)
+        return {"lit_skipped": f"the lit stage follows {methods} only; {job.method}'s normal "
+                "and data maps ship by their class"}  # fmt: skip
+    if done.result.uvs is not None:
+        return {"lit_skipped": "the result is in a new UV layout: its maps are re-baked into it, "
+                "not trained lit"}  # fmt: skip
+    return {}
 
 
 def downsample_details(done: Downsampled) -> dict[str, Any]:
@@ -360,6 +376,11 @@ def _lit_lines(lit: dict[str, Any] | None) -> list[str]:
     the start and the baselines it was chosen among."""
     if not lit:
         return []
+    if not lit["validation_scores"]:
+        return [
+            f"lit (protocol 2): not run ({lit['stopped_by']}); the normal and data maps ship "
+            "by their class; give a larger --time-budget"
+        ]
     scores = {"shipped": lit["validation_scores"], **lit["baseline_scores"]}
     sets = list(lit["validation_scores"])
     chosen = " / ".join(_decibels(lit["validation_scores"].get(name)) for name in sets)
@@ -422,6 +443,8 @@ def format_report(document: dict[str, Any]) -> str:
         )
     lines.extend(_validation_lines(document["method"], details))
     lines.extend(_lit_lines(details.get("lit")))
+    if "lit_skipped" in details:
+        lines.append(f"lit (protocol 2): not run: {details['lit_skipped']}")
     lines.extend(_layout_lines(document["method"], details))
     lines.extend(_maps_lines(document))
     return "\n".join(lines)
