@@ -206,6 +206,7 @@ def test_resume_redoes_an_asset_whose_input_or_options_changed(local_runs, libra
     key = record["settings"]
     assert completed(asset, key) is not None
     assert completed(asset, {**key, "method": "bicubic"}) is None
+    assert completed(asset, {**key, "protocol": 2}) is None
     texture = next(library / "sub" / f for f in record["inputs"] if f.endswith(".png"))
     stat = texture.stat()
     try:

@@ -170,7 +170,7 @@ def test_downsample_under_protocol_2_ships_every_map_trained_lit(tmp_path, capsy
             "--device", "cpu", "--report", str(tmp_path / "r.json")]  # fmt: skip
     assert main(argv, evaluation=QUICK) == 0
     printed = capsys.readouterr().out
-    assert "lit (protocol 2): every map trained further through lit views" in printed
+    assert "lit (protocol 2): normal and data maps trained through lit views" in printed
     report = json.loads((tmp_path / "r.json").read_text())
     lit = report["details"]["lit"]
     assert lit["steps"] == 4 and set(lit["baseline_scores"]) == {

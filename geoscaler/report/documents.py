@@ -390,7 +390,7 @@ def _lit_lines(lit: dict[str, Any] | None) -> list[str]:
         if name != "shipped"
     )
     return [
-        f"lit (protocol 2): every map trained further through lit views, {lit['steps']} steps "
+        f"lit (protocol 2): normal and data maps trained through lit views, {lit['steps']} steps "
         f"(best at step {lit['best_step']}), stopped by {lit['stopped_by']}; shipped "
         f"{lit['shipped']}",
         f"  lit PSNR-fg on {lit['validation_views']} views a set ({' / '.join(sets)}): shipped "
