@@ -65,6 +65,7 @@ def trace(path: Path, scale: int, steps: int, settings: LitSettings) -> None:
     evaluation = Evaluation(reference_max_size=None)
     began = time.perf_counter()
     run = _LitRun(mesh, start, baselines, settings, "cpu", evaluation)
+    run.begin()
     while run.pool.cache_next():
         pass
     print(f"{path.parent.name} x{scale}: views cached in {time.perf_counter() - began:.1f} s")
