@@ -24,10 +24,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from lit_maps import DATA, PBR_MESHES  # the PBR development meshes, beside this script
 
 from geoscaler.io import load_mesh
 from geoscaler.mesh import TexturedMesh
-from geoscaler.optim.lit import LitSettings, _LitRun
+from geoscaler.optim.lit import LitSettings, LitRun
 from geoscaler.pipeline.shipping import every_map_by, ship_asset
 from geoscaler.protocol import VALIDATION_DISTANCE, Evaluation
 from geoscaler.render.cameras import Camera, spread_order, validation_cameras
@@ -35,14 +36,6 @@ from geoscaler.render.renderer import Renderer
 from geoscaler.render.views import ViewSet
 from geoscaler.resize.filters import lanczos, output_sizes
 from geoscaler.resize.sizes import SizePlan, SizeRule
-
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
-PBR_MESHES = [
-    "ph_painted_wooden_stool/painted_wooden_stool_1k.gltf",
-    "ph_sofa_03/sofa_03_1k.gltf",
-    "ph_wooden_bookshelf_worn/wooden_bookshelf_worn_1k.gltf",
-    "ph_wooden_table_02/wooden_table_02_1k.gltf",
-]
 
 
 def unlit(original: TexturedMesh, candidate: TexturedMesh, cameras: list[Camera]) -> float:
@@ -64,7 +57,7 @@ def trace(path: Path, scale: int, steps: int, settings: LitSettings) -> None:
     baselines = {"lanczos": every_map_by(mesh, plan, "lanczos")}
     evaluation = Evaluation(reference_max_size=None)
     began = time.perf_counter()
-    run = _LitRun(mesh, start, baselines, settings, "cpu", evaluation)
+    run = LitRun(mesh, start, baselines, settings, "cpu", evaluation)
     run.begin()
     while run.pool.cache_next():
         pass

@@ -229,7 +229,7 @@ def validation_sets(
     return {name: LitViews(scene, reference, sizes, cameras[name]) for name in SET_NAMES}
 
 
-class _LitRun:
+class LitRun:
     """One run of :func:`optimize_lit`: its views, maps, optimiser, floor and best so far."""
 
     def __init__(
@@ -363,7 +363,7 @@ def optimize_lit(
     """
     clock = budget.clock
     evaluation = replace(evaluation or Evaluation(), reference_max_size=None)
-    run = _LitRun(original, start, baselines, settings, device, evaluation)
+    run = LitRun(original, start, baselines, settings, device, evaluation)
     facts = run.facts
     if not run.maps.values:
         facts.stopped_by, facts.clears_floor = "nothing to train", False
