@@ -28,7 +28,7 @@ from lit_maps import DATA, PBR_MESHES  # the PBR development meshes, beside this
 
 from geoscaler.io import load_mesh
 from geoscaler.mesh import TexturedMesh
-from geoscaler.optim.lit import LitSettings, LitRun
+from geoscaler.optim.lit import LitRun, LitSettings
 from geoscaler.pipeline.shipping import every_map_by, ship_asset
 from geoscaler.protocol import VALIDATION_DISTANCE, Evaluation
 from geoscaler.render.cameras import Camera, spread_order, validation_cameras
