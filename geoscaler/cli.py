@@ -397,7 +397,7 @@ def add_job_arguments(parser: argparse.ArgumentParser) -> None:
         "--protocol",
         type=int,
         help="what direct optimises for: 1, the base colour through unlit views; 2, then "
-        "every map of the material through lit views (default: 2 where a material has a "
+        "the normal and data maps through lit views (default: 2 where a material has a "
         "normal or metallic-roughness map, else 1; see docs/protocol.md)",
     )
     _add_device_argument(parser)

@@ -68,8 +68,8 @@ class Job:
             start: loading the mesh included).
         clock: where the job reads the time.
         image_format: "png", "jpeg" or "webp" for every image written (None: as the input).
-        protocol: 1, the base colour optimised unlit; 2, ``direct`` then trains every map
-            lit (:mod:`geoscaler.pipeline.lit`).
+        protocol: 1, the base colour optimised unlit; 2, ``direct`` then trains the normal
+            and data maps lit (:mod:`geoscaler.pipeline.lit`).
     """
 
     mesh_path: Path
