@@ -2,8 +2,8 @@
 
 The start is an asset as it would ship (each map at its size, the mesh's own UVs: ``direct``'s
 base colours with the class filters and Toksvig roughness for the rest); each distinct lit
-image of three or more channels (but those of slots the caller keeps) becomes one trainable ``(h, w, 3)`` tensor of its stored values
-in [0, 1] (:class:`LitMaps`): sRGB-encoded colour for base colour and emission (a step then
+image of three or more channels (but those of slots the caller keeps) becomes one trainable
+``(h, w, 3)`` tensor of its stored values in [0, 1] (:class:`LitMaps`): sRGB-encoded colour for base colour and emission (a step then
 moves dark and bright texels by similar visible amounts, as ``direct``'s texels), the linear
 values of data maps, and the encoded vectors of normal maps, kept unit and facing out of the
 surface after every step. Adam minimises the mean squared error of lit sRGB renders of training
