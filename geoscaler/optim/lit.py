@@ -3,11 +3,12 @@
 The start is an asset as it would ship (each map at its size, the mesh's own UVs: ``direct``'s
 base colours with the class filters and Toksvig roughness for the rest); each distinct lit
 image of three or more channels (but those of slots the caller keeps) becomes one trainable
-``(h, w, 3)`` tensor of its stored values in [0, 1] (:class:`LitMaps`): sRGB-encoded colour for base colour and emission (a step then
-moves dark and bright texels by similar visible amounts, as ``direct``'s texels), the linear
-values of data maps, and the encoded vectors of normal maps, kept unit and facing out of the
-surface after every step. Adam minimises the mean squared error of lit sRGB renders of training
-views against the full-resolution original's (:class:`~geoscaler.render.lit_views.LitViews`).
+``(h, w, 3)`` tensor of its stored values in [0, 1] (:class:`LitMaps`): sRGB-encoded colour for
+base colour and emission (a step then moves dark and bright texels by similar visible amounts,
+as ``direct``'s texels), the linear values of data maps, and the encoded vectors of normal
+maps, kept unit and facing out of the surface after every step. Adam minimises the mean
+squared error of lit sRGB renders of training views against the full-resolution original's
+(:class:`~geoscaler.render.lit_views.LitViews`).
 
 Candidates are validated as they ship (8-bit) on lit Q, near and far sets; the floor is the
 best of the caller's *baselines* on each set (filters' assets), and what :func:`optimize_lit`
