@@ -34,9 +34,9 @@ from geoscaler.optim.adamw import AdamW
 from geoscaler.optim.events import Controller
 from geoscaler.optim.floor import Floor, Scores
 from geoscaler.optim.loop import TRAINING_RANGES, VIEW_MEMORY
-from geoscaler.optim.validation_views import SET_NAMES, guard_cameras
-from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, VALIDATION_DISTANCE, Evaluation
-from geoscaler.render.cameras import sample_training_cameras, spread_order, view_set_cameras
+from geoscaler.optim.validation_views import SET_NAMES, validation_set_cameras
+from geoscaler.protocol import Evaluation
+from geoscaler.render.cameras import sample_training_cameras
 from geoscaler.render.lit import (
     NORMAL,
     SRGB_SLOTS,
@@ -219,15 +219,11 @@ def validation_sets(
     sizes: Sequence[set[tuple[int, int]]],
     count: int,
 ) -> dict[str, LitViews]:
-    """The lit Q, near and far sets of ``count`` views each (Q: the protocol's validation
-    cameras in spread order; near and far: the loop's guard cameras), none cached yet."""
-    q = view_set_cameras(VALIDATION_DISTANCE, scene.renderer.evaluation)
-    cameras = {
-        "Q": [q[i] for i in spread_order(len(q))][:count],
-        "near": guard_cameras(NEAR_DISTANCE, count),
-        "far": guard_cameras(FAR_DISTANCE, count),
-    }
-    return {name: LitViews(scene, reference, sizes, cameras[name]) for name in SET_NAMES}
+    """The lit Q, near and far sets, none cached yet: the unlit loop's cameras
+    (:func:`~geoscaler.optim.validation_views.validation_set_cameras`), ``count`` guards at
+    each distance and Q's first ``count`` in its spread order."""
+    cameras = validation_set_cameras(scene.renderer.evaluation, count)
+    return {name: LitViews(scene, reference, sizes, cameras[name][:count]) for name in SET_NAMES}
 
 
 class LitRun:
@@ -248,7 +244,7 @@ class LitRun:
         scene = LitScene(renderer)
         reference = lit_materials(original, self.device)
         self.maps = LitMaps(start, self.device, settings.kept)
-        sizes = map_sizes(self.maps.materials())
+        sizes = map_sizes(self.maps.fixed)
         self.sets = validation_sets(scene, reference, sizes, settings.validation_views)
         self.candidates = {"start": start, **baselines}
         self.scores: dict[str, Scores] = {}
@@ -322,8 +318,9 @@ class LitRun:
         else go back to that best at a lower rate."""
         asset = self.maps.asset()
         scores = self.score(asset)
-        if self.floor.rank(scores) > self.trained_rank:
-            self.trained, self.trained_rank = asset, self.floor.rank(scores)
+        rank = self.floor.rank(scores)
+        if rank > self.trained_rank:
+            self.trained, self.trained_rank = asset, rank
             self.scores[TRAINED], self.facts.best_step = scores, self.facts.steps
             return
         self.maps.restore(self.trained)

@@ -20,7 +20,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, VALIDATION_DISTANCE
+from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, VALIDATION_DISTANCE, Evaluation
 from geoscaler.render.cameras import Camera, fibonacci_directions, spread_order, view_set_cameras
 from geoscaler.render.renderer import Renderer
 from geoscaler.render.views import ViewCache, ViewSet
@@ -50,18 +50,25 @@ def guard_cameras(distance: float, count: int = GUARD_VIEWS) -> list[Camera]:
     return [Camera(tuple(turned[i]), float(distance)) for i in spread_order(count)]
 
 
-def validation_view_sets(renderer: Renderer, guard_views: int = GUARD_VIEWS) -> dict[str, ViewSet]:
-    """The three sets' views, none cached yet: Q (the views of ``renderer.evaluation``, in
-    spread order), near and far guards of ``guard_views`` each, but never more than Q has (a
-    quick evaluation's one view gets one guard at each distance). Views are shared by every
-    scale's :class:`~geoscaler.optim.validation.Validation`."""
-    q = view_set_cameras(VALIDATION_DISTANCE, renderer.evaluation)
-    guard_views = min(guard_views, len(q))
-    cameras = {
+def validation_set_cameras(
+    evaluation: Evaluation, guard_views: int = GUARD_VIEWS
+) -> dict[str, list[Camera]]:
+    """The three sets' cameras: Q (the views of ``evaluation``, in spread order), near and far
+    guards of ``guard_views`` each."""
+    q = view_set_cameras(VALIDATION_DISTANCE, evaluation)
+    return {
         "Q": [q[i] for i in spread_order(len(q))],
         "near": guard_cameras(NEAR_DISTANCE, guard_views),
         "far": guard_cameras(FAR_DISTANCE, guard_views),
     }
+
+
+def validation_view_sets(renderer: Renderer, guard_views: int = GUARD_VIEWS) -> dict[str, ViewSet]:
+    """The three sets' views (:func:`validation_set_cameras`), none cached yet, the guards
+    never more than Q has (a quick evaluation's one view gets one guard at each distance).
+    Views are shared by every scale's :class:`~geoscaler.optim.validation.Validation`."""
+    guard_views = min(guard_views, len(renderer.evaluation.view_indices))
+    cameras = validation_set_cameras(renderer.evaluation, guard_views)
     return {name: ViewSet(renderer, cams, eager=False) for name, cams in cameras.items()}
 
 

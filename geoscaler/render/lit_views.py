@@ -145,8 +145,9 @@ class LitViews:
         image = scene.render(lit, self.reference).reshape(-1, 3)
         pixel_of_sample = renderer.pixel_of_sample(lit.gbuffer).long()
         pixels = torch.unique(pixel_of_sample)
-        row_of_pixel = torch.full((renderer.image_size**2,), -1, dtype=torch.long)
-        row_of_pixel = row_of_pixel.to(pixels.device)
+        row_of_pixel = torch.full(
+            (renderer.image_size**2,), -1, dtype=torch.long, device=pixels.device
+        )
         row_of_pixel[pixels] = torch.arange(len(pixels), device=pixels.device)
         frame = shading_frame(lit.geometric, lit.tangent, lit.handedness, lit.view)
         parts = []

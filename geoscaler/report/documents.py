@@ -381,14 +381,13 @@ def _lit_lines(lit: dict[str, Any] | None) -> list[str]:
             f"lit (protocol 2): not run ({lit['stopped_by']}); the normal and data maps ship "
             "by their class; give a larger --time-budget"
         ]
-    scores = {"shipped": lit["validation_scores"], **lit["baseline_scores"]}
     sets = list(lit["validation_scores"])
-    chosen = " / ".join(_decibels(lit["validation_scores"].get(name)) for name in sets)
-    others = "; ".join(
-        f"{name} " + " / ".join(_decibels(values.get(name_)) for name_ in sets)
-        for name, values in scores.items()
-        if name != "shipped"
-    )
+
+    def scores(values: dict[str, float]) -> str:
+        return " / ".join(_decibels(values.get(name)) for name in sets)
+
+    chosen = scores(lit["validation_scores"])
+    others = "; ".join(f"{name} {scores(v)}" for name, v in lit["baseline_scores"].items())
     return [
         f"lit (protocol 2): normal and data maps trained through lit views, {lit['steps']} steps "
         f"(best at step {lit['best_step']}), stopped by {lit['stopped_by']}; shipped "
