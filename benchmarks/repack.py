@@ -35,7 +35,7 @@ from geoscaler.methods import LayoutFacts, MethodOptions, MethodResult, RunConte
 from geoscaler.methods.direct import DEFAULT_CONFIG
 from geoscaler.methods.learned import loop_config
 from geoscaler.methods.registry import get_method, output_sizes_for, register
-from geoscaler.methods.repacked import baked_maps, plan_layout
+from geoscaler.methods.repacked import baked_maps, offered_layouts
 from geoscaler.pipeline.downsampling import product_evaluation
 from geoscaler.pipeline.job import compare_mesh
 from geoscaler.protocol import PROTOCOL_EVALUATION
@@ -45,17 +45,19 @@ from geoscaler.report.documents import method_details
 from geoscaler.resize.sizes import SizeRule
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-METHODS = ["bicubic", "direct", "bake", "repack", "auto"]
+METHODS = ["bicubic", "lanczos", "direct", "bake", "repack", "auto"]
 LEARNED = ["direct", "repack", "auto"]
 
 
 def bake_alone(mesh, rule, options: MethodOptions, context: RunContext) -> MethodResult:
-    """The new layout and the reference maps baked into it: repack + `direct`'s start."""
+    """The first new layout a race weighs (:func:`offered_layouts`) and the reference maps
+    baked into it: that layout's start; Lanczos where no layout is offered."""
     renderer = context.renderer or Renderer(mesh, options.device)
     config = loop_config(DEFAULT_CONFIG, options, RunContext())
-    atlas = plan_layout(mesh, rule, renderer, config)
-    if not atlas.moved:
+    offered = offered_layouts(mesh, rule, renderer, config, LayoutFacts(uv="repack"))
+    if not offered:
         return get_method("lanczos").run(mesh, rule, options, context)
+    atlas = offered[0]
     sizes = output_sizes_for(mesh, rule, renderer)
     textures = baked_maps(mesh, atlas, renderer.reference_maps(), sizes)
     kept = get_method("lanczos").run(mesh, rule, options, context).textures
@@ -134,9 +136,9 @@ def _gain(row: dict, method: str) -> str:
 
 def table(rows: list[dict]) -> str:
     head = (
-        "| mesh | x | dist | bicubic | direct | bake | repack+direct | auto (layout) | k | "
-        "dV | s direct / repack / auto |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | "
-        "---: | ---: | ---: | ---: |"
+        "| mesh | x | dist | bicubic | lanczos | direct | bake | repack+direct | auto (layout) | "
+        "k | dV | s direct / repack / auto |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | "
+        "---: | ---: | ---: | ---: | ---: |"
     )
     lines = [head]
     for r in rows:
@@ -145,8 +147,9 @@ def table(rows: list[dict]) -> str:
         )
         lines.append(
             f"| {r['mesh']} | {r['scale']} | {r['distance']:g} | {r['bicubic']:.2f} | "
-            f"{_gain(r, 'direct')} | {_gain(r, 'bake')} | {_gain(r, 'repack')} | "
-            f"{_gain(r, 'auto')} | {r['k']:.2f}{' (cut)' if r.get('cut') else ''} | "
+            f"{_gain(r, 'lanczos')} | {_gain(r, 'direct')} | {_gain(r, 'bake')} | "
+            f"{_gain(r, 'repack')} | {_gain(r, 'auto')} | "
+            f"{r['k']:.2f}{' (cut)' if r.get('cut') else ''} | "
             f"{r['vertex_change']:+d} | {seconds} |"
         )
     for scale in sorted({r["scale"] for r in rows}):
@@ -160,7 +163,7 @@ def _mean_line(part: list[dict], scale: int, distance: float) -> str:
     """The table's mean row of one scale and distance, with how often auto fell below direct
     and the worst mesh's gain per method."""
     cells = []
-    for method in ("direct", "bake", "repack", "auto"):
+    for method in ("lanczos", "direct", "bake", "repack", "auto"):
         key = f"{method}_gain"
         if key not in part[0]:
             cells.append("-")

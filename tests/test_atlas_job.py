@@ -52,11 +52,19 @@ def test_repack_returns_new_uvs_of_every_face_corner_and_its_layout(cube):
     assert "race" not in method_details(result)
 
 
-def raced(cube, steps: int, on_event=None):
+def raced(cube, steps: int, on_event=None, floor: bool = False):
+    """``direct --uv auto`` on the cube; ``floor``: validated against Lanczos, as the job
+    validates against its filters."""
+    from geoscaler.optim.validation import Validation, validation_view_sets
     from geoscaler.render.renderer import Renderer
+    from geoscaler.resize.filters import lanczos
 
     renderer = Renderer(cube, "cpu", QUICK)
     context = RunContext(renderer, on_event=on_event)
+    if floor:
+        baseline = {"lanczos": [lanczos(renderer.reference_maps()[0], 4)]}
+        sets = validation_view_sets(renderer)
+        context = replace(context, validation=Validation(sets, [(64, 64)], baseline))
     return run_method("direct", cube, 4, options("auto", steps), context)
 
 
@@ -74,6 +82,37 @@ def test_auto_tries_both_layouts_and_the_better_validated_goes_on(cube):
     assert method_details(result)["steps"] == 2 + 2 + 8  # the winner goes on with what it has left
     # the continuation starts from the winner's best and validates it: never below it
     assert method_details(result)["validation_psnr_fg"] >= race[winner]["validation_psnr_fg"]
+
+
+def test_a_new_layout_whose_start_is_far_below_a_filter_gets_no_trial(cube, monkeypatch):
+    import geoscaler.methods.repacked as repacked
+
+    plain = repacked._new_layout
+
+    def black_start(*args):
+        """The new layout with its bake replaced by black: far below every filter."""
+        layout = plain(*args)
+        layout.starts = [None if s is None else torch.zeros_like(s) for s in layout.starts]
+        return layout
+
+    monkeypatch.setattr(repacked, "_new_layout", black_start)
+    result = raced(cube, steps=10, floor=True)
+    race = method_details(result)["race"]
+    assert list(race) == ["keep", "repack"]
+    gated = race["repack"]
+    assert gated["gated"] and gated["steps"] == 0
+    assert min(gated["start_below"].values()) > repacked.START_MARGIN
+    assert set(gated["start_below"]) == {"Q", "near", "far"}  # black is below on every set
+    assert not race["keep"]["gated"] and race["keep"]["start_below"] is None
+    assert method_details(result)["layout_used"] == "keep" and result.uvs is None
+    assert method_details(result)["steps"] == 10  # the own layout went on with the steps left
+
+
+def test_a_new_layout_started_within_the_margin_has_its_start_in_the_race_facts(cube):
+    race = method_details(raced(cube, steps=10, floor=True))["race"]
+    assert not race["repack"]["gated"] and race["repack"]["steps"] == 2
+    below = race["repack"]["start_below"]
+    assert below is not None and all(0 < gap <= 1.5 for gap in below.values())
 
 
 def test_a_new_layout_below_the_own_one_on_any_set_stays_out_of_the_race():

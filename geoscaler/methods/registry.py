@@ -128,6 +128,10 @@ class TrialFacts:
         the filters' floor on its worst set (0: it clears it); below_own_on: the sets on which
         it is below the own layout's trial beyond the noise; unfinished: it made fewer steps
         than the first trial (stopped by the budget's end), so it was not ranked.
+        start_below: set name -> how far (dB) the layout's start (its bake) validated below
+        the best filter there beyond the noise, on the sets where it did (a new layout's
+        trial only; None: not measured); gated: it started more than the race's margin below
+        on some set, so it had no trial (``steps`` 0, the scores its start's).
     """
 
     steps: int
@@ -136,6 +140,8 @@ class TrialFacts:
     shortfall_db: float
     below_own_on: list[str]
     unfinished: bool = False
+    start_below: dict[str, float] | None = None
+    gated: bool = False
 
 
 @dataclass

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from geoscaler.clock import Budget, unlimited
+from geoscaler.clock import WALL_CLOCK, Budget, Clock, unlimited
 from geoscaler.color import texture_to_linear
 from geoscaler.errors import GeoscalerError
 from geoscaler.mesh import TexturedMesh
@@ -34,6 +34,7 @@ from geoscaler.methods.registry import (
     TrialFacts,
     output_sizes_for,
 )
+from geoscaler.optim.floor import paired_gap
 from geoscaler.optim.loop import (
     FINISH_MARGIN,
     NOTHING_TO_GAIN,
@@ -41,8 +42,15 @@ from geoscaler.optim.loop import (
     LoopSetup,
     OptimizeConfig,
     Phase,
+    validate,
 )
-from geoscaler.optim.validation import MIN_FROZEN, Validation, sets_below, validation_view_sets
+from geoscaler.optim.validation import (
+    MIN_FROZEN,
+    Scores,
+    Validation,
+    sets_below,
+    validation_view_sets,
+)
 from geoscaler.render.cameras import Camera, sample_training_cameras
 from geoscaler.render.renderer import Renderer
 from geoscaler.render.views import ViewCache, training_views
@@ -59,6 +67,11 @@ before the better one goes on (:func:`raced`)."""
 NEW_LAYOUTS = ("repack", "unaligned")
 """The names of the new layouts a race may weigh: the planned one, and where that aligned its
 charts to the original's mip blocks, the unaligned one (:func:`_timely_layouts`)."""
+START_MARGIN = 1.5
+"""``--uv auto``: how far (dB, beyond the noise) a new layout's start, its bake, may validate
+below the best filter in the mesh's own layout on any set and still get a trial
+(:func:`start_below`): a trial's few steps do not make up more. Provisional: not yet
+checked against the trials' outcomes on the development set."""
 PREPARING_SHARE = 0.4
 """Under a time budget, the share of the method's time by which the new layout is planned and
 baked, the rest left to the steps: the packing's search stops there, the cut's plan is not
@@ -324,7 +337,8 @@ def raced(
         race.run(mesh, rule, name, layout, start_model(mesh, rule, layout.renderer, layout.starts))
         if _stopped(context) or race.nothing_to_gain or race.steps_each == 0:
             break
-    winner = _winner(race.results, layouts, facts, race.steps_each)
+    winner = _winner(race.results, layouts, facts, race.steps_each, race.starts)
+    facts.race.update(race.gated)
     first_step = next(iter(race.results.values())).loop.first_step_seconds
     best, layout, model = race.results[winner], layouts[winner], race.models[winner]
     best_step = best.loop.best_step
@@ -375,17 +389,36 @@ def _timely_layouts(
     end: float | None,
     facts: LayoutFacts,
 ) -> list[Atlas]:
-    """The new layouts (:data:`NEW_LAYOUTS`), planned and baked by :data:`PREPARING_SHARE` of
-    the time from ``started`` to ``end`` (None: no budget): the planned one, and where that
-    aligned its charts to the original's mip blocks (:func:`~geoscaler.uv.atlas.alignment_for`)
-    the unaligned one too, time allowing, so that a race weighs them; an aligned one sparser
-    than the mesh's own layout where the views look (``k`` below 1: its scales are powers of two
-    of the original's, rounded down) is not weighed, as its bake starts far below Lanczos in the
-    own layout; none where the layout does not move a chart or there is no time for it (the
-    reason in ``facts.skipped``). The first one's facts go in ``facts.planned``. Each bake is
-    priced first (:func:`bake_seconds`), so each plan's deadline leaves the bakes their time."""
-    clock = validation.clock
+    """The new layouts (:func:`offered_layouts`), planned and baked by :data:`PREPARING_SHARE`
+    of the time from ``started`` to ``end`` (None: no budget). Each bake is priced first
+    (:func:`bake_seconds`), so each plan's deadline leaves the bakes their time."""
     planned_by, baking = _planning_deadline(mesh, rule, renderer, validation, started, end)
+    return offered_layouts(mesh, rule, renderer, config, facts, validation.clock, planned_by,
+                           baking)  # fmt: skip
+
+
+def offered_layouts(
+    mesh: TexturedMesh,
+    rule: SizeRule,
+    renderer: Renderer,
+    config: OptimizeConfig,
+    facts: LayoutFacts,
+    clock: Clock = WALL_CLOCK,
+    planned_by: float | None = None,
+    baking: float = 0.0,
+) -> list[Atlas]:
+    """The new layouts a race may weigh (:data:`NEW_LAYOUTS`): the planned one, and where that
+    aligned its charts to the original's mip blocks (:func:`~geoscaler.uv.atlas.alignment_for`)
+    the unaligned one too, time allowing; an aligned one sparser than the mesh's own layout
+    where the views look (``k`` below 1: its scales are powers of two of the original's,
+    rounded down) is not weighed, as its bake starts far below Lanczos in the own layout; none
+    where the layout does not move a chart or there is no time for it (the reason in
+    ``facts.skipped``). The first one's facts go in ``facts.planned``.
+
+    Args:
+        planned_by: the instant on ``clock`` the first plan must be done by (None: no limit);
+            each later one by ``baking`` seconds (a bake's estimate) earlier.
+    """
     atlases: list[Atlas] = []
     for align in (True, False):
         deadline = None if planned_by is None else planned_by - len(atlases) * baking
@@ -454,6 +487,8 @@ class _Trials:
         self.results: dict[str, MethodResult] = {}
         self.models: dict[str, Any] = {}
         self.pools: dict[str, ViewCache] = {}
+        self.starts: dict[str, dict[str, float]] = {}
+        self.gated: dict[str, TrialFacts] = {}
         self.steps = 0
 
     def run(
@@ -462,16 +497,30 @@ class _Trials:
         """The trial of ``layout`` from ``model``: the first one, within its share of the time,
         sets the step count of the others to the steps it made; they run to the method's end at
         most. A trial after the first finds its layout's taps in the validation views (frozen
-        by the first) before its time starts: that is the layout's cost, not its steps'."""
+        by the first) before its time starts: that is the layout's cost, not its steps'.
+        After the mesh's own layout's trial, a new layout whose start validates more than
+        :data:`START_MARGIN` below the best filter on some set (:func:`start_below`) gets no
+        trial (:attr:`gated`)."""
         first = not self.results
+        handover: dict[str, Any] = {}
         if not first:
             layout.validation.find_taps()
+        if not first and "keep" in self.results:
+            with torch.no_grad():
+                start = validate(layout.validation, model.candidate())
+            self.starts[name] = below = start_below(layout.validation, start)
+            if any(gap > START_MARGIN for gap in below.values()):
+                self.gated[name] = _gated_facts(layout.validation, start, below)
+                return
+            handover["start_scores"] = start
         deadline = self.end
         if first and self.end is not None and self.seconds is not None:
             deadline = min(self.context.clock.now() + self.seconds, self.end)
         phase = _Phase(self.config, self.context, self.started, self.steps, first, last=False)
         pool = training_views(layout.renderer, self.cameras, layout.validation.sizes, True)
-        result = phase.fit(mesh, rule, layout, model, deadline, 0.0, self.steps_each, pool=pool)
+        result = phase.fit(
+            mesh, rule, layout, model, deadline, 0.0, self.steps_each, pool=pool, **handover
+        )
         self.results[name], self.models[name], self.pools[name] = result, model, pool
         self.steps += result.loop.steps
         if first:
@@ -484,17 +533,42 @@ class _Trials:
         return any(r.loop.stopped_by == NOTHING_TO_GAIN for r in self.results.values())
 
 
+def start_below(validation: Validation, start: Scores) -> dict[str, float]:
+    """Set name -> how far (dB) ``start`` validates below the best filter there beyond the
+    noise (:func:`~geoscaler.optim.floor.paired_gap` of the filter over it), on the sets where
+    it does."""
+    floor = validation.floor()
+    gaps = {name: paired_gap(best, start, name) for name, best in floor.items()}
+    return {name: round(gap, 4) for name, gap in gaps.items() if gap > 0}
+
+
+def _gated_facts(validation: Validation, start: Scores, below: dict[str, float]) -> TrialFacts:
+    """The facts of a layout that had no trial, its start too far below a filter."""
+    return TrialFacts(
+        steps=0,
+        validation_psnr_fg=round(start["Q"], 4),
+        validation_sets={n: round(v, 4) for n, v in start.items()},
+        shortfall_db=round(validation.shortfall(start), 4),
+        below_own_on=[],
+        start_below=below,
+        gated=True,
+    )
+
+
 def _winner(
     trials: dict[str, MethodResult],
     layouts: dict[str, Layout],
     facts: LayoutFacts,
     steps_each: int,
+    starts: Mapping[str, dict[str, float]] | None = None,
 ) -> str:
     """The layout whose trial ranks first on the validation (a tie keeps the mesh's own) among
     those that made ``steps_each`` steps and are not below the mesh's own layout's trial on any
     set beyond the noise (:func:`~geoscaler.optim.validation.sets_below`): a new layout better
     on Q but worse far away does not replace the own one. The first trial always counts (it
-    set ``steps_each``). Each trial's facts go into ``facts.race``."""
+    set ``steps_each``). Each trial's facts go into ``facts.race``, with how far below a
+    filter its start validated where ``starts`` measured it (:func:`start_below`)."""
+    starts = starts or {}
     scores = {name: trial.loop.validation_scores for name, trial in trials.items()}
     ranks = {name: layouts[name].validation.rank(scores[name]) for name in trials}
     own = scores.get("keep")
@@ -507,6 +581,7 @@ def _winner(
             shortfall_db=round(ranks[name][0], 4),
             below_own_on=below[name],
             unfinished=trial.loop.steps < steps_each,
+            start_below=starts.get(name),
         )
         for name, trial in trials.items()
     }

@@ -490,6 +490,13 @@ def _trial_words(name: str, trial: dict[str, Any]) -> str:
     """One layout's trial in the race: its validation, steps and why it was out, if it was."""
     sets = trial.get("validation_sets", {})
     others = "".join(f", {n} {sets[n]:.2f}" for n in ("near", "far") if n in sets)
+    below = trial.get("start_below") or {}
+    gaps = " and ".join(f"{gap:.2f} dB on {name}" for name, gap in below.items())
+    if trial.get("gated"):
+        return (
+            f"{LAYOUT_NAMES[name]} started Q {trial['validation_psnr_fg']:.2f} dB{others}, "
+            f"below a filter by {gaps}: no trial"
+        )
     words = (
         f"{LAYOUT_NAMES[name]} Q {trial['validation_psnr_fg']:.2f} dB{others} after "
         f"{trial['steps']} step{'' if trial['steps'] == 1 else 's'}"
@@ -500,6 +507,8 @@ def _trial_words(name: str, trial: dict[str, Any]) -> str:
         words += f" (below the own layout on {' and '.join(trial['below_own_on'])})"
     if trial.get("unfinished"):
         words += " (short of the first trial's steps: not ranked)"
+    if below:
+        words += f" (its start below a filter by {gaps})"
     return words
 
 
