@@ -393,8 +393,8 @@ def _timely_layouts(
     of the time from ``started`` to ``end`` (None: no budget). Each bake is priced first
     (:func:`bake_seconds`), so each plan's deadline leaves the bakes their time."""
     planned_by, baking = _planning_deadline(mesh, rule, renderer, validation, started, end)
-    return offered_layouts(mesh, rule, renderer, config, facts, validation.clock, planned_by,
-                           baking)  # fmt: skip
+    clock = validation.clock
+    return offered_layouts(mesh, rule, renderer, config, facts, clock, planned_by, baking)
 
 
 def offered_layouts(
@@ -505,14 +505,14 @@ class _Trials:
         handover: dict[str, Any] = {}
         if not first:
             layout.validation.find_taps()
-        if not first and "keep" in self.results:
-            with torch.no_grad():
-                start = validate(layout.validation, model.candidate())
-            self.starts[name] = below = start_below(layout.validation, start)
-            if any(gap > START_MARGIN for gap in below.values()):
-                self.gated[name] = _gated_facts(layout.validation, start, below)
-                return
-            handover["start_scores"] = start
+            if "keep" in self.results:
+                with torch.no_grad():
+                    start = validate(layout.validation, model.candidate())
+                self.starts[name] = below = start_below(layout.validation, start)
+                if any(gap > START_MARGIN for gap in below.values()):
+                    self.gated[name] = _gated_facts(layout.validation, start, below)
+                    return
+                handover["start_scores"] = start
         deadline = self.end
         if first and self.end is not None and self.seconds is not None:
             deadline = min(self.context.clock.now() + self.seconds, self.end)
