@@ -139,7 +139,7 @@ class OptimisePanel:
                 "what the method trains through: exact (as a GPU shows it) or soft (the "
                 "paper's soft rasteriser); validation is always exact"
             )
-            if settings.method == "direct":
+            if settings.method == "direct" and settings.renderer == "exact":
                 layouts = list(UV_MODES)
                 _, index = imgui.combo("UV layout", layouts.index(settings.uv), layouts)
                 settings.uv = layouts[index]

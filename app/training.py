@@ -47,6 +47,7 @@ from geoscaler.render.metrics import evaluate
 from geoscaler.render.renderer import Renderer
 from geoscaler.render.texture import MipTexture
 from geoscaler.render.views import ViewSet
+from geoscaler.uv.uvmodes import JOB_UV_MODE
 
 from .gl_renderer import srgb_mip_chain
 
@@ -81,7 +82,9 @@ class TrainingSettings:
         optimize: ``OptimizeConfig`` overrides for learned methods (tests use a small pool).
         renderer: what learned methods train through: ``"exact"`` or ``"soft"`` (the paper's
             soft rasteriser); validation is exact either way.
-        uv: ``direct``'s UV layout: ``"keep"``, ``"repack"`` or ``"auto"`` (``--uv``).
+        uv: ``direct``'s UV layout through the exact renderer: ``"keep"``, ``"repack"`` or
+            ``"auto"`` (``--uv``; default as ``downsample``'s, :data:`JOB_UV_MODE`); the soft
+            renderer trains in the mesh's own layout.
     """
 
     method: str = "direct"
@@ -91,7 +94,7 @@ class TrainingSettings:
     evaluation: Evaluation = PROTOCOL_EVALUATION
     optimize: dict[str, Any] = field(default_factory=dict)
     renderer: str = "exact"
-    uv: str = "keep"
+    uv: str = JOB_UV_MODE
 
     def step_limit(self) -> int | None:
         """The steps the run will stop at (unless its time budget ends it first); None when
@@ -151,8 +154,9 @@ class Training:
         if settings.renderer != "exact":
             loop["training_renderer"] = settings.renderer
         extra: dict[str, Any] = {"optimize": loop} if loop else {}
-        if settings.uv != "keep" and settings.method == "direct":
-            extra["uv"] = settings.uv
+        uv = settings.uv if settings.renderer == "exact" else "keep"
+        if uv != "keep" and settings.method == "direct":
+            extra["uv"] = uv
         # No default budget here: None is the user's "no limit". A filter has no budget (the
         # field is not shown for it), as the CLI gives it none unless asked.
         budget = settings.time_budget if is_learned(settings.method) else None

@@ -15,7 +15,7 @@ from geoscaler.clock import WALL_CLOCK
 from geoscaler.errors import GeoscalerError
 from geoscaler.process import configure_process, exit_status_kept
 from geoscaler.protocol import PROTOCOL, PROTOCOL_EVALUATION, Evaluation
-from geoscaler.uv.uvmodes import add_uv_argument
+from geoscaler.uv.uvmodes import JOB_UV_MODE, add_uv_argument
 
 DEFAULT_DEMO_DIR = Path("assets")
 
@@ -121,8 +121,8 @@ def job_settings(args: argparse.Namespace) -> dict[str, Any]:
         method_settings,
     )
 
-    settings = method_settings(args)
     method = check_method(args.method)
+    settings = method_settings(args, [method], JOB_UV_MODE)
     if args.variant is not None:
         if method != "geoscaler":
             raise GeoscalerError("--variant: only --method geoscaler has variants")
@@ -267,9 +267,11 @@ def cmd_batch(args: argparse.Namespace) -> int:
     return command(args, settings)
 
 
-def _add_network_arguments(parser: argparse.ArgumentParser, variants: str) -> None:
-    """Flags of the learned methods: what they train through; the GeoScaler network's
-    variant(s), preset, VGG-19 weights."""
+def _add_network_arguments(
+    parser: argparse.ArgumentParser, variants: str, uv_default: str
+) -> None:
+    """Flags of the learned methods: what they train through, ``direct``'s UV layout (unset:
+    ``uv_default``); the GeoScaler network's variant(s), preset, VGG-19 weights."""
     parser.add_argument(
         "--renderer",
         choices=["exact", "soft"],
@@ -278,7 +280,7 @@ def _add_network_arguments(parser: argparse.ArgumentParser, variants: str) -> No
         "soft (the paper's soft rasteriser, geoscaler.render.soft); validation and scores are "
         "exact",
     )
-    add_uv_argument(parser)
+    add_uv_argument(parser, uv_default)
     parser.add_argument("--variant", help=variants)
     parser.add_argument(
         "--preset",
@@ -335,6 +337,7 @@ def _add_method_arguments(
         parser,
         "with geoscaler in --methods: comma-separated network variants to run, each a row "
         "of its own, e.g. base,gcm,uvw,full (default: full)",
+        "keep",
     )
 
 
@@ -377,6 +380,7 @@ def add_job_arguments(parser: argparse.ArgumentParser) -> None:
     _add_network_arguments(
         parser,
         "with --method geoscaler: base, gcm (GeoCoding), uvw (UVWarper) or full (default)",
+        JOB_UV_MODE,
     )
     parser.add_argument(
         "--time-budget",

@@ -25,7 +25,7 @@ from geoscaler.protocol import VIEWS
 from geoscaler.render.devices import resolve_device
 from geoscaler.resize.filters import check_scale
 from geoscaler.resize.sizes import SizePlan, SizeRule, parse_class_value, size_plan
-from geoscaler.uv.uvmodes import check_uv_mode
+from geoscaler.uv.uvmodes import uv_mode
 
 DEFAULT_TIME_BUDGET = 60.0
 """Seconds a learned method's job may spend when ``--time-budget`` is not given (downsample,
@@ -202,17 +202,18 @@ def network_settings(preset: str | None = None, vgg19: str | Path | None = None)
     return settings
 
 
-def method_settings(args: Any) -> dict:
-    """The methods' own settings from parsed arguments: the network's ``--preset`` and
+def method_settings(args: Any, methods: Sequence[str], uv_default: str = "keep") -> dict:
+    """The settings of ``methods`` from parsed arguments: the network's ``--preset`` and
     ``--vgg19``, ``--renderer`` (what learned methods train through), ``direct``'s ``--uv``
-    (keep, repack or auto), a downsampling job's stop where nothing visible is left to gain
-    (unless ``--full-budget``; ``compare`` and ``bench`` measure whole budgets), plus
-    ``args.optimize``,
-    loop overrides that a caller of :func:`geoscaler.cli.main` injected (None from the
-    command line)."""
+    (keep, repack or auto; unset, ``uv_default`` for ``direct``: :func:`uv_mode`), a
+    downsampling job's stop where nothing visible is left to gain (unless ``--full-budget``;
+    ``compare`` and ``bench`` measure whole budgets), plus ``args.optimize``, loop overrides
+    that a caller of :func:`geoscaler.cli.main` injected (None from the command line)."""
     settings = network_settings(args.preset, args.vgg19)
-    if getattr(args, "uv", "keep") != "keep":
-        settings["uv"] = check_uv_mode(args.uv)
+    renderer = getattr(args, "renderer", "exact")
+    uv = uv_mode(getattr(args, "uv", None), uv_default, methods, renderer)
+    if uv != "keep":
+        settings["uv"] = uv
     loop = dict(args.optimize or {})
     if getattr(args, "renderer", "exact") != "exact":
         loop["training_renderer"] = args.renderer
@@ -264,7 +265,8 @@ def comparison_settings(args: Any) -> tuple[list[int], list[str], list[float], M
     scales = check_scales(args.scale)
     methods = check_methods(args.methods, args.variant)
     distances = check_distances(args.distance)
+    settings = method_settings(args, methods)
     options = method_options(
-        methods, args.device, args.seed, args.steps, args.time_budget, method_settings(args)
+        methods, args.device, args.seed, args.steps, args.time_budget, settings
     )
     return scales, methods, distances, options
