@@ -150,3 +150,40 @@ def test_a_late_ctrl_c_does_not_change_the_exit_status(body, status):
     code = LATE_CTRL_C.format(body=body)
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert (done.returncode, done.stderr) == (status, "")
+
+
+@pytest.mark.parametrize(
+    "argv, uv",
+    [
+        (["downsample", "m.glb", "-o", "o.glb"], "auto"),
+        (["downsample", "m.glb", "-o", "o.glb", "--uv", "keep"], None),
+        (["downsample", "m.glb", "-o", "o.glb", "--uv", "repack"], "repack"),
+        (["downsample", "m.glb", "-o", "o.glb", "--renderer", "soft"], None),
+        (["downsample", "m.glb", "-o", "o.glb", "--method", "geoscaler"], None),
+        (["batch", "in", "-o", "out"], "auto"),
+    ],
+)
+def test_jobs_race_the_layouts_unless_told_otherwise(argv, uv):
+    """``direct`` through the exact renderer races the layouts by default where assets are made;
+    ``--uv keep``, the soft renderer and the network keep the mesh's own (no ``uv`` setting)."""
+    from geoscaler.cli import build_parser, job_settings
+
+    args = build_parser().parse_args(argv)
+    args.optimize = None  # as main() sets it
+    assert job_settings(args)["options"].settings.get("uv") == uv
+
+
+@pytest.mark.parametrize(
+    "argv, uv",
+    [
+        (["compare", "m.glb", "--methods", "bicubic,direct"], None),
+        (["compare", "m.glb", "--methods", "bicubic,direct", "--uv", "auto"], "auto"),
+    ],
+)
+def test_comparisons_measure_the_own_layout_unless_asked(argv, uv):
+    from geoscaler.cli import build_parser
+    from geoscaler.pipeline.arguments import comparison_settings
+
+    args = build_parser().parse_args(argv)
+    args.optimize = None
+    assert comparison_settings(args)[3].settings.get("uv") == uv
