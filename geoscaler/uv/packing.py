@@ -41,7 +41,12 @@ from geoscaler.errors import GeoscalerError
 MIN_BOX_TEXELS = 2.0
 """Smallest side, in atlas texels, of the box a tiny chart is packed as."""
 SEARCH_STEPS = 12
-"""Bisection steps of the density search (from 1/16 of the all-texels bound: about 0.3 %)."""
+"""Most bisection steps of the density search (from 1/16 of the all-texels bound)."""
+SEARCH_RATIO = 1.01
+"""The density search stops once its bracket is this narrow (highest density tried that
+failed over the highest that fitted): 1 % more texels a side is 0.09 dB of bicubic's loss at
+5 dB per halving of the density, below what the race can tell apart; each xatlas packing of a
+4096 scan's charts costs a third of a second."""
 XATLAS_UNIT = 1024.0
 """xatlas units per scaled UV unit (see the module's note on faces it ignores): large enough
 that only degenerate faces fall under its epsilon, since charts with ignored faces are packed
@@ -332,7 +337,7 @@ def pack(
         return budget is not None and budget.expired()
 
     for _ in range(SEARCH_STEPS):
-        if late():
+        if late() or high <= low * SEARCH_RATIO:
             break
         middle = math.sqrt(low * high)
         packed, boxes = _place(charts, scales, size, middle, padding, rotate, boxes, grid)
