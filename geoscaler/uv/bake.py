@@ -173,6 +173,6 @@ def _nearest_chart(layout: ChartMaps, grid: int) -> tuple[torch.Tensor, torch.Te
     labels = labels.reshape(grid, grid)
     covered = labels >= 0
     if covered.any():
-        _, (rows, cols) = distance_transform_edt(~covered, return_indices=True)
+        rows, cols = distance_transform_edt(~covered, return_distances=False, return_indices=True)
         labels = labels[rows, cols]
     return torch.from_numpy(labels), torch.from_numpy(covered)
