@@ -259,20 +259,30 @@ def test_densities_above_the_bisections_answer_are_tried(monkeypatch):
     assert 0.55 * every_texel <= packed.texels_per_unit < 0.6 * every_texel
 
 
-def test_the_density_search_stops_once_its_bracket_is_narrow(monkeypatch):
-    # charts fit below half the all-texels density (32): the bisection from 1/16 of it narrows
-    # to SEARCH_RATIO in 9 looks (ln 16 / 2^9 < ln 1.01 < ln 16 / 2^8), then the probes above
+def square_chart() -> Charts:
+    """One chart: the unit square, two faces."""
     uvs = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float64)
-    charts = Charts(np.array([[0, 1, 2], [0, 2, 3]]), uvs, np.zeros(4, np.int64), 1)
-    tried = []
+    return Charts(np.array([[0, 1, 2], [0, 2, 3]]), uvs, np.zeros(4, np.int64), 1)
+
+
+def placing(tried: list[float], fits):
+    """A stand-in for ``packing._place`` that records each density tried and packs (as a
+    plain scale) where ``fits(density)``."""
 
     def place(charts, scales, size, tpu, padding, rotate, boxes, grid=None):
         tried.append(tpu)
         found = packing.Packed(np.eye(2)[None] * tpu / size, np.zeros((1, 2)), tpu, boxes)
-        return (found if tpu < 16.0 else None), boxes
+        return (found if fits(tpu) else None), boxes
 
-    monkeypatch.setattr(packing, "_place", place)
-    packed = pack(charts, np.ones(1), 32, 1, rotate=False)
+    return place
+
+
+def test_the_density_search_stops_once_its_bracket_is_narrow(monkeypatch):
+    # charts fit below half the all-texels density (32): the bisection from 1/16 of it narrows
+    # to SEARCH_RATIO in 9 looks (ln 16 / 2^9 < ln 1.01 < ln 16 / 2^8), then the probes above
+    tried = []
+    monkeypatch.setattr(packing, "_place", placing(tried, lambda tpu: tpu < 16.0))
+    packed = pack(square_chart(), np.ones(1), 32, 1, rotate=False)
     bisection = tried[: -len(packing.PROBES)]
     assert len(bisection) == 9
     assert 16.0 / packing.SEARCH_RATIO <= packed.texels_per_unit < 16.0
@@ -280,16 +290,10 @@ def test_the_density_search_stops_once_its_bracket_is_narrow(monkeypatch):
 
 def test_the_packing_search_stops_at_its_deadline(monkeypatch):
     # past the deadline no density is tried: the densest found so far packs; none: refused
-    uvs = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float64)
-    charts = Charts(np.array([[0, 1, 2], [0, 2, 3]]), uvs, np.zeros(4, np.int64), 1)
+    charts = square_chart()
     tried = []
-
-    def place(charts, scales, size, tpu, padding, rotate, boxes, grid=None):
-        tried.append(tpu)
-        found = packing.Packed(np.eye(2)[None] * tpu / size, np.zeros((1, 2)), tpu, boxes)
-        return (found if tpu < 16.0 else None), boxes  # half the all-texels density, 32
-
-    monkeypatch.setattr(packing, "_place", place)
+    # fits below half the all-texels density, 32
+    monkeypatch.setattr(packing, "_place", placing(tried, lambda tpu: tpu < 16.0))
     budget = Budget(TickingClock(), 0.0, 3.5)  # one second a look at the clock
     packed = pack(charts, np.ones(1), 32, 1, rotate=False, budget=budget)
     assert tried == pytest.approx([8.0, 16.0, 8.0 * 2**0.5])  # three looks before 3.5 s
