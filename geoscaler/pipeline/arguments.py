@@ -215,8 +215,8 @@ def method_settings(args: Any, methods: Sequence[str], uv_default: str = "keep")
     if uv != "keep":
         settings["uv"] = uv
     loop = dict(args.optimize or {})
-    if getattr(args, "renderer", "exact") != "exact":
-        loop["training_renderer"] = args.renderer
+    if renderer != "exact":
+        loop["training_renderer"] = renderer
     if not getattr(args, "full_budget", True):  # downsample and batch: on unless asked off
         loop["finish_when_invisible"] = True
     if loop:

@@ -45,8 +45,8 @@ SEARCH_STEPS = 12
 SEARCH_RATIO = 1.01
 """The density search stops once its bracket is this narrow (highest density tried that
 failed over the highest that fitted): 1 % more texels a side is 0.09 dB of bicubic's loss at
-5 dB per halving of the density, below what the race can tell apart; each xatlas packing of a
-4096 scan's charts costs a third of a second."""
+5 dB per halving of the density, below what the race can tell apart; an xatlas packing of a
+4096 scan's charts costs 0.1 to 0.25 s (ycb_chain at 4x, unaligned and aligned)."""
 XATLAS_UNIT = 1024.0
 """xatlas units per scaled UV unit (see the module's note on faces it ignores): large enough
 that only degenerate faces fall under its epsilon, since charts with ignored faces are packed

@@ -22,8 +22,8 @@ def check_uv_mode(mode: str) -> str:
 
 JOB_UV_MODE = "auto"
 """``direct``'s layout in the jobs that make assets (``downsample``, ``batch``, the app) where
-``--uv`` is not given: the race keeps the mesh's own layout unless a new one validates better
-on every view set (docs/decisions/auto-by-default.md)."""
+``--uv`` is not given: the race keeps the mesh's own layout unless a new one ranks better on
+the validation and is below it on no view set (docs/decisions/auto-by-default.md)."""
 
 
 def add_uv_argument(parser: Any, default: str) -> None:
