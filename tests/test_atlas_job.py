@@ -196,6 +196,37 @@ def test_a_first_trial_of_no_step_ends_the_race_and_its_layout_goes_on(monkeypat
     assert result.loop.steps == 10
 
 
+def test_a_later_phase_times_its_first_step_from_the_methods_start():
+    """A trial after the first, and the winner's continuation, time their loops from their
+    own start; the race reports first steps from the method's."""
+    import math
+    from types import SimpleNamespace
+
+    import geoscaler.methods.repacked as repacked
+    from geoscaler.clock import ManualClock
+    from geoscaler.methods.registry import LoopFacts, MethodResult
+    from geoscaler.optim.loop import OptimizeConfig
+
+    clock = ManualClock()
+    clock.set(5.0)  # the phase starts 5 s after the method
+
+    def fit(mesh, rule, model, config, context, start, facts, setup):
+        loop = LoopFacts(3, 0, {}, True, {}, "steps", 1.0, 4, {"Q": 3}, 0)
+        return MethodResult([None], loop=loop)
+
+    config = OptimizeConfig(steps=10, pool_views=4)
+    phase = repacked._Phase(config, RunContext(clock=clock), 0.0, 2, first=False, last=True)
+    result = phase.fit(None, None, SimpleNamespace(fit=fit), None, None, 0.0, 3)
+    assert result.loop.first_step_seconds == 6.0  # 1 s into a phase that began at 5 s
+
+    def made(first_step: float) -> MethodResult:
+        loop = LoopFacts(0, 0, {}, True, {}, "steps", first_step, 4, {"Q": 3}, 0)
+        return MethodResult([None], loop=loop)
+
+    assert repacked._first_step([made(math.nan), made(6.0), made(9.0)]) == 6.0
+    assert math.isnan(repacked._first_step([made(math.nan)]))
+
+
 def test_an_aligned_layout_sparser_than_the_own_one_is_not_weighed(monkeypatch):
     from types import SimpleNamespace
 

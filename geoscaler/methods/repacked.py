@@ -14,7 +14,8 @@ the two layouts on that shared validation (:func:`raced`).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -339,7 +340,7 @@ def raced(
             break
     winner = _winner(race.results, layouts, facts, race.steps_each, race.starts)
     facts.race.update(race.gated)
-    first_step = next(iter(race.results.values())).loop.first_step_seconds
+    first_step = _first_step(race.results.values())
     best, layout, model = race.results[winner], layouts[winner], race.models[winner]
     best_step = best.loop.best_step
     steps_left = config.steps - best.loop.steps
@@ -374,9 +375,16 @@ def raced(
         loop,
         steps=loop.steps + race.steps,
         best_step=loop.best_step or best_step,  # 0: its start, the trial's best
-        first_step_seconds=first_step,
+        first_step_seconds=_first_step([*race.results.values(), result]),
     )
     return result
+
+
+def _first_step(results: Iterable[MethodResult]) -> float:
+    """Seconds from the method's start to the race's first step: the earliest first step of
+    ``results`` (nan: none made a step)."""
+    made = [r.loop.first_step_seconds for r in results if not math.isnan(r.loop.first_step_seconds)]
+    return min(made, default=math.nan)
 
 
 def _timely_layouts(
@@ -649,7 +657,11 @@ class _Phase:
         context = replace(self.context, reserve=reserve)
         phase = Phase(self.steps_before, self.config.steps, self.started, self.first, self.last)
         setup = LoopSetup(phase=phase, **handover)
-        return layout.fit(mesh, rule, model, config, context, start, facts, setup)
+        result = layout.fit(mesh, rule, model, config, context, start, facts, setup)
+        if not self.first:  # its loop timed its first step from its own start
+            since = round(result.loop.first_step_seconds + (start - self.started), 3)
+            result.loop = replace(result.loop, first_step_seconds=since)
+        return result
 
 
 def _with_layout_uvs(on_event: Any, uvs: torch.Tensor) -> Any:
