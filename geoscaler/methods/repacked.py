@@ -552,14 +552,23 @@ def start_below(validation: Validation, start: Scores) -> dict[str, float]:
 
 def _gated_facts(validation: Validation, start: Scores, below: dict[str, float]) -> TrialFacts:
     """The facts of a layout that had no trial, its start too far below a filter."""
+    rank = validation.rank(start)
+    return _trial_facts(start, rank, 0, below_own_on=[], start_below=below, gated=True)
+
+
+def _trial_facts(
+    scores: Scores, rank: tuple[float, float], steps: int, **verdict: Any
+) -> TrialFacts:
+    """A trial's :class:`TrialFacts`: its ``scores`` per set and its ``rank``
+    (:meth:`Validation.rank`) after ``steps``, rounded as the report shows them, with
+    ``verdict``, the race's other facts of it."""
+    shortfall, q = rank
     return TrialFacts(
-        steps=0,
-        validation_psnr_fg=round(start["Q"], 4),
-        validation_sets={n: round(v, 4) for n, v in start.items()},
-        shortfall_db=round(validation.shortfall(start), 4),
-        below_own_on=[],
-        start_below=below,
-        gated=True,
+        steps=steps,
+        validation_psnr_fg=round(q, 4),
+        validation_sets={name: round(value, 4) for name, value in scores.items()},
+        shortfall_db=round(shortfall, 4),
+        **verdict,
     )
 
 
@@ -582,11 +591,10 @@ def _winner(
     own = scores.get("keep")
     below = {n: [] if own is None or n == "keep" else sets_below(scores[n], own) for n in trials}
     facts.race = {
-        name: TrialFacts(
-            steps=trial.loop.steps,
-            validation_psnr_fg=round(ranks[name][1], 4),
-            validation_sets={n: round(v, 4) for n, v in scores[name].items()},
-            shortfall_db=round(ranks[name][0], 4),
+        name: _trial_facts(
+            scores[name],
+            ranks[name],
+            trial.loop.steps,
             below_own_on=below[name],
             unfinished=trial.loop.steps < steps_each,
             start_below=starts.get(name),
