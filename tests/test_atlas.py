@@ -206,6 +206,64 @@ def test_padding_violations_count_charts_closer_than_the_padding():
     assert padding_violations(texels, labels, 8, 4) == 2  # each sees the other
 
 
+def test_a_face_covers_the_texels_of_the_samples_inside_it_edges_included():
+    # a right triangle on a 4 x 4 grid, two samples a side: its legs run through the centres of
+    # samples 0 and 5 (u = 0.0625, 0.6875 in sample units 0.5, 5.5), its hypotenuse through
+    # the samples where column + row = 5 (top-left origin, rows downwards from v = 1)
+    corners = np.array([[[0.0625, 0.9375], [0.6875, 0.9375], [0.0625, 0.3125]]])
+    texels, labels = chart_texels(corners, np.array([3]), 4)
+    covered = {(0, 0), (0, 1), (0, 2), (1, 0), (1, 1), (2, 0)}  # (row, column) of texels
+    assert {divmod(int(t), 4) for t in texels} == covered
+    assert (labels == 3).all()
+
+
+def test_a_face_across_the_border_wraps_onto_the_grid():
+    corners = np.array([[[-0.25, 0.5], [0.1, 0.5], [0.1, 0.6]]])  # u < 0: the right-hand side
+    texels, _ = chart_texels(corners, np.array([0]), 10, supersample=1)
+    assert {divmod(int(t), 10) for t in texels} == {(4, 9), (4, 0)}
+
+
+def test_chart_coverage_agrees_with_a_test_of_every_sample():
+    rng = np.random.default_rng(7)
+    for trial in range(40):
+        corners = rng.uniform(-0.2, 1.2, (12, 3, 2))
+        if trial % 2:  # corners on sample centres: samples on edges
+            corners = (np.floor(corners * 16) + 0.5) / 16
+        labels = rng.integers(0, 4, 12)
+        texels, found = chart_texels(corners, labels, 8)
+        assert set(zip(texels.tolist(), found.tolist(), strict=True)) == covered_by_every_sample(
+            corners, labels, 8, 2
+        )
+
+
+def covered_by_every_sample(corners, labels, size, supersample):
+    """``{(flat texel, label)}``: a sample inside a face (edges included) covers its texel; a
+    face with no area covers the samples on its segment."""
+    grid = size * supersample
+    centres = (np.arange(grid) + 0.5) / grid
+    u, v = np.meshgrid(centres, 1.0 - centres)  # rows downwards from v = 1
+    found = set()
+    for face, label in zip(corners, labels, strict=True):
+        for shift_u in (-1, 0, 1):  # repeat addressing: the face's copies one tile away
+            for shift_v in (-1, 0, 1):
+                (au, av), (bu, bv), (cu, cv) = face - [shift_u, shift_v]
+                sides = [
+                    (qu - pu) * (v - pv) - (qv - pv) * (u - pu)
+                    for (pu, pv), (qu, qv) in (((au, av), (bu, bv)), ((bu, bv), (cu, cv)),
+                                               ((cu, cv), (au, av)))
+                ]  # fmt: skip
+                hair = 1e-12
+                inside = np.all([s >= -hair for s in sides], axis=0) | np.all(
+                    [s <= hair for s in sides], axis=0
+                )
+                low, high = (face - [shift_u, shift_v]).min(0), (face - [shift_u, shift_v]).max(0)
+                inside &= (u >= low[0]) & (u <= high[0]) & (v >= low[1]) & (v <= high[1])
+                for row, col in zip(*np.nonzero(inside), strict=True):
+                    texel = (row // supersample) * size + col // supersample
+                    found.add((int(texel), int(label)))
+    return found
+
+
 def test_used_atlases_outlive_their_packing_a_bounded_while(monkeypatch):
     # xatlas may hang destroying an atlas whose worker thread is still going back to sleep
     monkeypatch.setattr(packing, "_retired", type(packing._retired)())
@@ -286,6 +344,42 @@ def test_the_density_search_stops_once_its_bracket_is_narrow(monkeypatch):
     bisection = tried[: -len(packing.PROBES)]
     assert len(bisection) == 9
     assert 16.0 / packing.SEARCH_RATIO <= packed.texels_per_unit < 16.0
+
+
+def sized_placing(tried: list[tuple[int, float]], fits):
+    """As :func:`placing`, recording ``(atlas size, density)`` and packing where
+    ``fits(size, density)``."""
+
+    def place(charts, scales, size, tpu, padding, rotate, boxes, grid=None):
+        tried.append((size, tpu))
+        found = packing.Packed(np.eye(2)[None] * tpu / size, np.zeros((1, 2)), tpu, boxes)
+        return (found if fits(size, tpu) else None), boxes
+
+    return place
+
+
+def test_a_large_atlas_is_searched_coarse_then_confirmed_at_full_size(monkeypatch):
+    # the unit square fits up to 45 % of the all-texels density in the half-size atlas and up
+    # to 47 % at full size: the full size confirms the coarse answer, then bisects above it
+    tried = []
+    limit = {512: 0.45, 1024: 0.47}
+    fits = sized_placing(tried, lambda size, tpu: tpu < limit[size] * size)
+    monkeypatch.setattr(packing, "_place", fits)
+    packed = pack(square_chart(), np.ones(1), 1024, 4, rotate=False)
+    full = [tpu for size, tpu in tried if size == 1024]
+    assert {size for size, _ in tried} == {512, 1024}
+    assert tried[-len(full) :] == [(1024, tpu) for tpu in full]  # coarse first
+    assert 0.45 * 1024 / packing.SEARCH_RATIO <= full[0] < 0.45 * 1024  # the coarse answer
+    assert len(full) <= 5  # the answer, then a bisection across COARSE_SPAN
+    assert 0.47 * 1024 / packing.SEARCH_RATIO <= packed.texels_per_unit < 0.47 * 1024
+
+
+def test_where_the_coarse_answer_misleads_the_full_size_is_searched_from_scratch(monkeypatch):
+    tried = []
+    limit = {512: 0.45, 1024: 0.3}  # nothing within REFINE_STEPS of the coarse answer fits
+    monkeypatch.setattr(packing, "_place", sized_placing(tried, lambda s, t: t < limit[s] * s))
+    packed = pack(square_chart(), np.ones(1), 1024, 4, rotate=False)
+    assert 0.3 * 1024 / packing.SEARCH_RATIO <= packed.texels_per_unit < 0.3 * 1024
 
 
 def test_the_packing_search_stops_at_its_deadline(monkeypatch):

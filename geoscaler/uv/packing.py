@@ -55,6 +55,22 @@ PROBES = (1.16, 1.08, 1.04, 1.02)
 """Density steps tried above the bisection's answer: xatlas places charts by a randomised
 heuristic, so whether they fit is not monotone in the density (see
 docs/decisions/packing-xatlas-settings.md)."""
+COARSE_MIN_SIZE = 1024
+"""Atlases at least this large are searched at a smaller size first (:func:`pack`); below
+it an xatlas packing costs under 0.1 s."""
+COARSE_FACTOR = 2
+"""The coarse search's atlas is this many times smaller a side: xatlas packs charts as
+bitmaps of the atlas's texels, and a packing of a 4096 scan's charts into 512 texels costs a
+third of one into 1024 (0.06 against 0.19 s, ycb_chain); a coarse texel covers four, so what
+fits coarse mostly fits at full size (see docs/decisions/packing-xatlas-settings.md)."""
+REFINE_STEPS = (1.0, 1 / 1.02, 1 / 1.05, 1 / 1.1)
+"""Densities, relative to the coarse search's answer, tried at full size until one fits."""
+COARSE_SPAN = 1.1
+"""Above the density that fits at full size, a bisection looks up to this factor higher
+(coarse bitmaps waste texels at the charts' edges: the full size fits more, 6 % on
+ycb_peach)."""
+EDGE_HAIR = 1e-7
+"""Samples this close to a face's edge (in samples) count as inside it (:func:`sample_spans`)."""
 SCALE_TOLERANCE = 1e-3
 """Relative error allowed between a chart's planned and packed scale."""
 RETIRED_ATLASES = 8
@@ -318,6 +334,13 @@ def pack(
     density tried is rounded down to that grid times a power of two (:func:`aligned_scales`):
     the packed scales are ``sqrt(|det linear|)``, not ``scales`` times the density.
 
+    Atlases of at least :data:`COARSE_MIN_SIZE` are searched at a smaller size first
+    (:data:`COARSE_FACTOR`), where a packing costs a third; at full size the coarse answer (or
+    a density :data:`REFINE_STEPS` below it) is confirmed and a short bisection looks up to
+    :data:`COARSE_SPAN` above it. Where nothing near the coarse answer fits, the full size is
+    searched from scratch: a bisection from 1/16 of the all-texels density, then
+    :data:`PROBES`.
+
     Raises:
         PackingError: not even a sparse packing holds the charts at their planned scales, or
             none was found within ``budget``.
@@ -329,35 +352,89 @@ def pack(
             signed_areas(charts.corner_uvs * scales[charts.corner_chart, None], charts.corner_faces)
         ).sum()
     )
-    high = size / math.sqrt(max(area, 1e-30))  # every texel used
-    low, best = high / 16, None
-    boxes = folded_charts(charts)
-
-    def late() -> bool:
-        return budget is not None and budget.expired()
-
-    for _ in range(SEARCH_STEPS):
-        if late() or high <= low * SEARCH_RATIO:
-            break
-        middle = math.sqrt(low * high)
-        packed, boxes = _place(charts, scales, size, middle, padding, rotate, boxes, grid)
-        if packed is not None:
-            low, best = middle, packed
-        else:
-            high = middle
-    if best is None and late():
+    every_texel = size / math.sqrt(max(area, 1e-30))
+    search = _Search(charts, scales, size, padding, rotate, budget, grid)
+    if size >= COARSE_MIN_SIZE:
+        coarse = size // COARSE_FACTOR
+        factor = size / coarse
+        try:
+            rough = pack(charts, scales, coarse, math.ceil(padding / factor), rotate, budget, grid)
+        except PackingError:
+            rough = None
+        if rough is not None:
+            guess = rough.texels_per_unit * factor
+            best = search.first_fit(guess)
+            if best is not None:
+                return search.bisect(best, guess * COARSE_SPAN)
+    best = search.bisect(None, every_texel, low=every_texel / 16)
+    if best is None and search.late():
         raise PackingError("the time budget left no time to pack the UV charts")
     if best is None:
         raise PackingError(
             f"the UV charts do not fit one {size}x{size} atlas at their planned scales"
         )
-    for factor in PROBES:
-        if late():
-            break
-        tpu = best.texels_per_unit * factor
-        packed, boxes = _place(charts, scales, size, tpu, padding, rotate, boxes, grid)
-        best = packed or best
-    return best
+    return search.probe(best)
+
+
+@dataclass
+class _Search:
+    """The density search of one :func:`pack` call at one atlas size: each look packs once."""
+
+    charts: Charts
+    scales: np.ndarray
+    size: int
+    padding: int
+    rotate: bool
+    budget: Budget | None
+    grid: float | None
+
+    def __post_init__(self) -> None:
+        self.boxes = folded_charts(self.charts)
+
+    def late(self) -> bool:
+        return self.budget is not None and self.budget.expired()
+
+    def place(self, tpu: float) -> Packed | None:
+        """The packing at density ``tpu``, or None (charts xatlas split are boxed from then
+        on)."""
+        packed, self.boxes = _place(self.charts, self.scales, self.size, tpu, self.padding,
+                                    self.rotate, self.boxes, self.grid)  # fmt: skip
+        return packed
+
+    def first_fit(self, guess: float) -> Packed | None:
+        """The packing at ``guess`` or a density :data:`REFINE_STEPS` below it, the first
+        that fits, or None."""
+        for step in REFINE_STEPS:
+            if self.late():
+                return None
+            packed = self.place(guess * step)
+            if packed is not None:
+                return packed
+        return None
+
+    def bisect(self, best: Packed | None, high: float, low: float | None = None) -> Packed | None:
+        """The densest packing a bisection finds between ``best``'s density (or ``low``, not
+        known to fit) and ``high`` (not known to fit): at most :data:`SEARCH_STEPS` looks,
+        until the bracket is :data:`SEARCH_RATIO` narrow or the budget ends."""
+        low = best.texels_per_unit if best is not None else low
+        for _ in range(SEARCH_STEPS):
+            if self.late() or high <= low * SEARCH_RATIO:
+                break
+            middle = math.sqrt(low * high)
+            packed = self.place(middle)
+            if packed is not None:
+                low, best = middle, packed
+            else:
+                high = middle
+        return best
+
+    def probe(self, best: Packed) -> Packed:
+        """``best``, or a denser packing :data:`PROBES` find above it."""
+        for factor in PROBES:
+            if self.late():
+                break
+            best = self.place(best.texels_per_unit * factor) or best
+        return best
 
 
 def chart_texels(
@@ -365,36 +442,66 @@ def chart_texels(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Texels each face's chart covers: ``((N,) flat texel index, (N,) label)`` pairs, each
     once, where a texel counts as covered when one of its ``supersample^2`` sample centres
-    lies in a face (edges included); repeat addressing wraps texels onto the grid.
+    lies in a face (edges included, to :data:`EDGE_HAIR`); repeat addressing wraps texels
+    onto the grid.
 
     Args:
         corner_uvs: ``(F, 3, 2)`` UVs of each face's corners; labels: ``(F,)`` int chart of
             each face; size: texels per side.
     """
-    grid = size * supersample
-    corners = np.asarray(corner_uvs, np.float64)
-    points = np.stack([corners[..., 0] * grid, (1.0 - corners[..., 1]) * grid], axis=-1)
-    low = np.ceil(points.min(axis=1) - 0.5).astype(np.int64)
-    high = np.floor(points.max(axis=1) - 0.5).astype(np.int64)
-    span = np.maximum(high - low + 1, 0)
-    counts = span[:, 0] * span[:, 1]
-    face = np.repeat(np.arange(len(corners)), counts)
-    rank = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    x = low[face, 0] + rank % np.maximum(span[face, 0], 1) + 0.5
-    y = low[face, 1] + rank // np.maximum(span[face, 0], 1) + 0.5
-    p = points[face]
-    sides = []
-    for a, b in ((0, 1), (1, 2), (2, 0)):
-        edge = p[:, b] - p[:, a]
-        sides.append(edge[:, 0] * (y - p[:, a, 1]) - edge[:, 1] * (x - p[:, a, 0]))
-    sides = np.stack(sides, axis=1)
-    scale = np.abs(sides).max(axis=1, keepdims=True) * 1e-9 + 1e-12
-    inside = (sides >= -scale).all(axis=1) | (sides <= scale).all(axis=1)
-    col = np.mod(np.floor(x[inside] / supersample).astype(np.int64), size)
-    row = np.mod(np.floor(y[inside] / supersample).astype(np.int64), size)
+    face, row, first, last = sample_spans(np.asarray(corner_uvs, np.float64), size * supersample)
+    first, last = first // supersample, last // supersample  # texel columns
+    span, offset = _expand(last - first + 1)
+    col = np.mod(first[span] + offset, size)
+    texel_row = np.mod(row[span] // supersample, size)
     count = int(labels.max(initial=0)) + 1
-    keys = np.unique((row * size + col) * count + labels[face[inside]])  # by texel, then label
+    keys = np.unique((texel_row * size + col) * count + labels[face[span]])  # by texel, label
     return keys // count, keys % count
+
+
+def sample_spans(
+    corner_uvs: np.ndarray, grid: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The samples of a ``grid x grid`` lattice (centres at half-integers, rows downwards
+    from ``v = 1``) inside each face, edges included, as runs along rows:
+    ``((S,) face, (S,) row, (S,) first column, (S,) last column)`` int64 over the non-empty
+    runs, rows and columns unwrapped (they may lie outside ``0 .. grid - 1``).
+
+    Args:
+        corner_uvs: ``(F, 3, 2)`` float64 UVs of each face's corners.
+    """
+    points = np.stack([corner_uvs[..., 0] * grid, (1.0 - corner_uvs[..., 1]) * grid], axis=-1)
+    heights = points[..., 1]
+    row0 = np.ceil(heights.min(axis=1) - 0.5).astype(np.int64)
+    rows = np.maximum(np.floor(heights.max(axis=1) - 0.5).astype(np.int64) - row0 + 1, 0)
+    face, offset = _expand(rows)
+    row = row0[face] + offset
+    y = row + 0.5
+    turn = np.where(corner_areas(points) < 0, -1.0, 1.0)[face]  # inside: every side >= 0
+    widths = points[face, :, 0]  # (S, 3): a face lies within its box, degenerate ones too
+    lower, upper = widths.min(axis=1) - EDGE_HAIR, widths.max(axis=1) + EDGE_HAIR
+    empty = np.zeros(len(face), bool)
+    for a, b in ((0, 1), (1, 2), (2, 0)):
+        start, edge = points[face, a], points[face, b] - points[face, a]
+        # side(x) = edge_x (y - start_y) - edge_y (x - start_x) = slope x + intercept
+        slope = -edge[:, 1] * turn
+        intercept = (edge[:, 0] * (y - start[:, 1]) + edge[:, 1] * start[:, 0]) * turn
+        intercept += EDGE_HAIR * np.hypot(edge[:, 0], edge[:, 1])
+        bound = -intercept / np.where(slope == 0, 1.0, slope)
+        lower = np.where(slope > 0, np.maximum(lower, bound), lower)
+        upper = np.where(slope < 0, np.minimum(upper, bound), upper)
+        empty |= (slope == 0) & (intercept < 0)
+    first = np.ceil(lower - 0.5)
+    last = np.floor(upper - 0.5)
+    keep = ~empty & (last >= first)
+    return face[keep], row[keep], first[keep].astype(np.int64), last[keep].astype(np.int64)
+
+
+def _expand(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For items of ``counts[i]`` elements each: ``(item, position within item)`` per
+    element."""
+    item = np.repeat(np.arange(len(counts)), counts)
+    return item, np.arange(len(item)) - (np.cumsum(counts) - counts)[item]
 
 
 def overlapping_texels(texels: np.ndarray, labels: np.ndarray) -> np.ndarray:
