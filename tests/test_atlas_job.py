@@ -196,6 +196,37 @@ def test_a_first_trial_of_no_step_ends_the_race_and_its_layout_goes_on(monkeypat
     assert result.loop.steps == 10
 
 
+def test_the_first_trials_share_is_of_the_time_left_after_what_the_race_pays_once():
+    """Caching the validation views and scoring the baselines is paid once, whatever layout
+    wins: the first trial's share of the time is taken after it, not out of it."""
+    from types import SimpleNamespace
+
+    import geoscaler.methods.repacked as repacked
+    from geoscaler.clock import ManualClock
+    from geoscaler.optim.loop import FINISH_MARGIN, OptimizeConfig
+
+    clock = ManualClock()
+    clock.set(4.0)  # the race starts 4 s into the method; it ends at 24 s
+    trials = repacked._Trials(
+        OptimizeConfig(steps=10), RunContext(clock=clock), 0.0, 24.0, cameras=[]
+    )
+    asked = []
+
+    def seconds_needed(validations, caching, view_seconds):
+        asked.append((validations, caching, view_seconds))
+        return 2.0  # the views to cache and the baselines' scoring, at 0.25 s a view
+
+    validation = SimpleNamespace(seconds_needed=seconds_needed, view_cost=0.25)
+    once = FINISH_MARGIN * 2.0
+    expected = 4.0 + once + repacked.TRIAL_SHARE * (20.0 - once)
+    assert trials._first_deadline(validation) == pytest.approx(expected)
+    assert asked == [(0, True, 0.25)]  # no candidate's validation: those are the trial's
+    clock.set(23.0)  # almost no time left: never past the method's end
+    assert trials._first_deadline(validation) == 24.0
+    unbudgeted = repacked._Trials(OptimizeConfig(steps=10), RunContext(), 0.0, None, [])
+    assert unbudgeted._first_deadline(validation) is None
+
+
 def test_a_later_phase_times_its_first_step_from_the_methods_start():
     """A trial after the first, and the winner's continuation, time their loops from their
     own start; the race reports first steps from the method's."""

@@ -307,9 +307,9 @@ def raced(
     new ones, aligned and not), then the one whose trial validates best goes on from its best
     candidate with the steps and the time left.
 
-    The first trial runs at most :data:`TRIAL_SHARE` of the time left when the race starts
-    (its views are cached in the whole run's caching window, which may run past its end) and
-    that share of the steps; the others make as many steps as the first made, bounded only by
+    The first trial runs, after what the race pays once (the validation views' caching and
+    the baselines' scoring), at most :data:`TRIAL_SHARE` of the time left and that share of
+    the steps; the others make as many steps as the first made, bounded only by
     the method's end, so that all are ranked after the same number of steps. A trial that
     could not make them is not ranked, and a first trial of no step (its share of the budget
     spent on caching) ends the race: the first layout goes on alone. Trials are ranked as
@@ -490,7 +490,6 @@ class _Trials:
     ):
         self.config, self.context, self.started, self.end = config, context, started, end
         self.cameras = cameras
-        self.seconds = None if end is None else TRIAL_SHARE * (end - context.clock.now())
         self.steps_each = max(1, round(TRIAL_SHARE * config.steps))
         self.results: dict[str, MethodResult] = {}
         self.models: dict[str, Any] = {}
@@ -521,9 +520,7 @@ class _Trials:
                     self.gated[name] = _gated_facts(layout.validation, start, below)
                     return
                 handover["start_scores"] = start
-        deadline = self.end
-        if first and self.end is not None and self.seconds is not None:
-            deadline = min(self.context.clock.now() + self.seconds, self.end)
+        deadline = self._first_deadline(layout.validation) if first else self.end
         phase = _Phase(self.config, self.context, self.started, self.steps, first, last=False)
         pool = training_views(layout.renderer, self.cameras, layout.validation.sizes, True)
         result = phase.fit(
@@ -533,6 +530,19 @@ class _Trials:
         self.steps += result.loop.steps
         if first:
             self.steps_each = result.loop.steps
+
+    def _first_deadline(self, validation: Validation) -> float | None:
+        """When the first trial ends (None: no budget): after what the race pays once, whatever
+        the layouts, and :data:`TRIAL_SHARE` of the time left after it. Paid once: the validation
+        views still to cache before they freeze and the baselines' scoring
+        (:meth:`~geoscaler.optim.validation.Validation.seconds_needed`, with the loop's
+        :data:`~geoscaler.optim.loop.FINISH_MARGIN`); a share that had to pay them too left a
+        short budget's first trial no step."""
+        if self.end is None:
+            return None
+        now = self.context.clock.now()
+        once = FINISH_MARGIN * validation.seconds_needed(0, True, validation.view_cost)
+        return min(now + once + TRIAL_SHARE * max(self.end - now - once, 0.0), self.end)
 
     @property
     def nothing_to_gain(self) -> bool:
