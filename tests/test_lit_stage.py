@@ -216,3 +216,41 @@ def test_a_method_the_lit_stage_does_not_follow_says_so(tmp_path, capsys):
             "--method", "lanczos", "--device", "cpu"]  # fmt: skip
     assert main(argv, evaluation=QUICK) == 0
     assert "lit (protocol 2): not run: the lit stage follows direct only" in capsys.readouterr().out
+
+
+def test_the_lit_stage_is_priced_at_least_at_its_views_and_a_few_steps_of_unlit_views():
+    from geoscaler.optim.lit import LEAST_STEPS
+    from geoscaler.pipeline.lit import lit_stage_may_fit
+
+    settings = LitSettings()
+    views = 3 * settings.validation_views + LEAST_STEPS * settings.views_per_step  # 24 + 20
+    least = views * 0.2
+    assert lit_stage_may_fit(0.2, least)
+    assert not lit_stage_may_fit(0.2, least - 0.01)
+
+
+def test_a_lit_share_too_short_for_the_stage_goes_to_the_method_before_it():
+    from geoscaler.pipeline.job import lit_share
+    from geoscaler.pipeline.lit import LIT_SHARE, lit_stage_may_fit
+
+    assert lit_stage_may_fit(0.2, LIT_SHARE * 20.0)  # 10 s hold 44 views of 0.2 s
+    assert lit_share(True, 20.0, 0.2) == LIT_SHARE * 20.0
+    assert lit_share(True, 15.0, 0.2) == 0.0  # 7.5 s do not: the method has all 15
+    assert lit_share(False, 20.0, 0.2) == 0.0  # no lit stage
+    assert lit_share(True, None, 0.2) == 0.0  # no budget: the stage runs its steps after
+
+
+def test_a_lit_stage_the_time_left_cannot_hold_spends_nothing(mesh, monkeypatch):
+    import geoscaler.pipeline.lit as lit_stage
+    from geoscaler.methods import MethodResult
+
+    def untouched(*args, **kwargs):
+        raise AssertionError("the stage was run")
+
+    monkeypatch.setattr(lit_stage, "optimize_lit", untouched)
+    monkeypatch.setattr(lit_stage, "ship_asset", untouched)
+    result = MethodResult([None])
+    budget = Budget(ManualClock(), 0.0, 8.0)  # 8 s left; 44 views of 0.2 s need 8.8
+    out = lit_stage.train_lit(mesh, PLAN, "direct", result, None, budget, "cpu", view_seconds=0.2)
+    assert out.lit.stopped_by == NOT_AFFORDED and not out.lit.clears_floor
+    assert out.textures == result.textures

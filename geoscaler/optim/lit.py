@@ -139,9 +139,7 @@ class LitMaps:
         kept: slots whose images stay as they are (an image another slot trains is trained).
     """
 
-    def __init__(
-        self, asset: TexturedMesh, device: torch.device | str, kept: Sequence[str] = ()
-    ):
+    def __init__(self, asset: TexturedMesh, device: torch.device | str, kept: Sequence[str] = ()):
         self.start = asset
         self.values: dict[int, torch.Tensor] = {}  # id(image) -> (h, w, 3) stored values
         self.images: dict[int, np.ndarray] = {}
@@ -213,6 +211,17 @@ class LitMaps:
                 self.values[id(pixels)].copy_(torch.from_numpy(stored))
 
 
+def least_seconds(
+    view_seconds: float, score_seconds: float, views: int, candidates: int, settings: LitSettings
+) -> float:
+    """The least a lit run costs (seconds): caching ``views`` validation views and scoring
+    ``candidates`` on each, then :data:`LEAST_STEPS` steps, each priced as a validation view
+    per training view (``view_seconds`` a view, ``score_seconds`` a candidate's score on
+    one)."""
+    setup = views * (view_seconds + candidates * score_seconds)
+    return setup + LEAST_STEPS * settings.views_per_step * view_seconds
+
+
 def validation_sets(
     scene: LitScene,
     reference: Sequence[LitMaterial],
@@ -270,9 +279,9 @@ class LitRun:
         q.psnr(lit_materials(self.candidates["start"], self.device, encoded=False), count=1)
         score_seconds = clock.now() - began
         views = sum(len(v.cameras) for v in self.sets.values())
-        setup = views * (view_seconds + len(self.candidates) * score_seconds)
-        steps = LEAST_STEPS * self.settings.views_per_step * view_seconds
-        return budget.fits(setup + steps)
+        least = least_seconds(view_seconds, score_seconds, views, len(self.candidates),
+                              self.settings)  # fmt: skip
+        return budget.fits(least)
 
     def begin(self) -> None:
         """Cache the validation views, score the start and the baselines, set the floor."""

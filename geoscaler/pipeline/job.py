@@ -48,7 +48,7 @@ from geoscaler.pipeline.arguments import (
     check_protocol,
     check_rules,
 )
-from geoscaler.pipeline.lit import LIT_SHARE, lit_stage_applies, train_lit
+from geoscaler.pipeline.lit import LIT_SHARE, lit_stage_applies, lit_stage_may_fit, train_lit
 from geoscaler.pipeline.rows import protocol_row, scored_row, validation_row
 from geoscaler.pipeline.shipping import (
     EVERY_MAP_FILTERS,
@@ -253,14 +253,14 @@ class _MethodRuns:
             seconds = remaining_budget(seconds, clock.now() - budget.started_at)
             reserve = budget.reserve
         lit = lit_stage_applies(self.mesh, name, self.protocol)
-        lit_seconds = LIT_SHARE * seconds if lit and seconds is not None else 0.0
-        reserve_after = reserve + lit_seconds  # the lit stage's time follows the method
-        context = RunContext(self.renderer, validation, self.controller,
-                             self.observer.on_event, seconds, reserve_after, clock)  # fmt: skip
         if budget is not None:
             self.renderer.reference_textures()  # made once, before a view is priced
             if not learned_fits(validation, seconds, reserve):
                 return not_run(name, outputs, seconds)
+        lit_seconds = lit_share(lit, seconds, validation.view_cost)
+        reserve_after = reserve + lit_seconds  # the lit stage's time follows the method
+        context = RunContext(self.renderer, validation, self.controller,
+                             self.observer.on_event, seconds, reserve_after, clock)  # fmt: skip
         method_start = clock.now()
         result = _run(self.mesh, rule, name, self.options, context, seconds, self.observer)
         if budget is not None and result.loop is not None:
@@ -276,7 +276,7 @@ class _MethodRuns:
                 self.mesh, plan, name, result, outputs.get("lanczos"), stage,
                 str(self.renderer.device), self.options.seed, self.options.steps, self.controller,
                 lambda done, total: self.observer.stage(what, done, total),
-                self.renderer.evaluation,
+                self.renderer.evaluation, validation.view_cost,
             )  # fmt: skip
         return result
 
@@ -409,6 +409,18 @@ class _Stages:
 
     def done(self) -> None:
         self.observer.stage("done", self.total, self.total)
+
+
+def lit_share(lit: bool, seconds: float | None, view_seconds: float) -> float:
+    """Seconds of a learned method's ``seconds`` kept for the lit stage after it: its
+    :data:`~geoscaler.pipeline.lit.LIT_SHARE`, or none where there is no stage, no budget, or
+    that share cannot hold the stage even at its least
+    (:func:`~geoscaler.pipeline.lit.lit_stage_may_fit`, ``view_seconds`` an unlit validation
+    view's cost): the method then has the whole budget, and the stage whatever it leaves."""
+    if not lit or seconds is None:
+        return 0.0
+    share = LIT_SHARE * seconds
+    return share if lit_stage_may_fit(view_seconds, share) else 0.0
 
 
 def learned_fits(validation: Validation, budget: float | None, reserve: float) -> bool:

@@ -18,7 +18,15 @@ from geoscaler.clock import Budget
 from geoscaler.mesh import BASE_COLOR, TexturedMesh
 from geoscaler.methods import MethodResult, Shipping
 from geoscaler.optim.events import Controller
-from geoscaler.optim.lit import TRAINED, LitSettings, optimize_lit
+from geoscaler.optim.lit import (
+    NOT_AFFORDED,
+    TRAINED,
+    LitFacts,
+    LitSettings,
+    least_seconds,
+    optimize_lit,
+)
+from geoscaler.optim.validation_views import SET_NAMES
 from geoscaler.pipeline.shipping import every_map_by, ship_asset
 from geoscaler.protocol import Evaluation
 from geoscaler.render.lit import (
@@ -59,6 +67,17 @@ def lit_stage_applies(mesh: TexturedMesh, name: str, protocol: int) -> bool:
     )
 
 
+def lit_stage_may_fit(view_seconds: float, seconds: float) -> bool:
+    """Whether ``seconds`` may hold the lit stage at all: its least cost
+    (:func:`~geoscaler.optim.lit.least_seconds`) priced at ``view_seconds``, an unlit
+    validation view's cost, and no time to score. A lit view renders the same G-buffer and
+    reference as an unlit one and more, so where this says no, the stage's own check on its
+    first lit view would too (without spending that view)."""
+    settings = LitSettings()
+    views = len(SET_NAMES) * settings.validation_views
+    return least_seconds(view_seconds, 0.0, views, 0, settings) <= seconds
+
+
 def train_lit(
     mesh: TexturedMesh,
     plan: SizePlan,
@@ -72,9 +91,12 @@ def train_lit(
     controller: Controller | None = None,
     progress: Callable[[int, int], None] | None = None,
     evaluation: Evaluation | None = None,
+    view_seconds: float = 0.0,
 ) -> MethodResult:
     """``result`` (in the mesh's own layout) after the lit stage: its base colours and the
-    maps the stage chose (:attr:`MethodResult.maps`), with :attr:`MethodResult.lit`.
+    maps the stage chose (:attr:`MethodResult.maps`), with :attr:`MethodResult.lit`. Where
+    ``budget`` cannot hold the stage even at its least (:func:`lit_stage_may_fit`), nothing
+    is done and the facts say so.
 
     Args:
         mesh: the original asset.
@@ -91,7 +113,11 @@ def train_lit(
         controller: stops the stage (its best so far ships) or pauses it.
         progress: ``progress(done, total)`` after each step (:func:`optimize_lit`).
         evaluation: the validation views' size (default: the protocol's).
+        view_seconds: an unlit validation view's cost (0: unknown, the stage's own check
+            alone decides).
     """
+    if budget.limited and not lit_stage_may_fit(view_seconds, budget.left()):
+        return replace(result, lit=LitFacts(stopped_by=NOT_AFFORDED, clears_floor=False))
     start = ship_asset(mesh, plan, result.textures, "direct")[0]
     baselines = {f: every_map_by(mesh, plan, f) for f in ("lanczos", "bicubic")}
     if lanczos is not None:
