@@ -207,20 +207,23 @@ def test_the_first_trials_share_is_of_the_time_left_after_what_the_race_pays_onc
 
     clock = ManualClock()
     clock.set(4.0)  # the race starts 4 s into the method; it ends at 24 s
-    trials = repacked._Trials(
-        OptimizeConfig(steps=10), RunContext(clock=clock), 0.0, 24.0, cameras=[]
-    )
+    config = OptimizeConfig(steps=10, views_per_step=4)
+    trials = repacked._Trials(config, RunContext(clock=clock), 0.0, 24.0, cameras=[])
     asked = []
 
     def seconds_needed(validations, caching, view_seconds):
         asked.append((validations, caching, view_seconds))
-        return 2.0  # the views to cache and the baselines' scoring, at 0.25 s a view
+        # the views to cache and the baselines' scoring, at 0.25 s a view; 0.1 s a validation
+        return 2.0 + 0.1 * validations
 
     validation = SimpleNamespace(seconds_needed=seconds_needed, view_cost=0.25)
     once = FINISH_MARGIN * 2.0
     expected = 4.0 + once + repacked.TRIAL_SHARE * (20.0 - once)
     assert trials._first_deadline(validation) == pytest.approx(expected)
-    assert asked == [(0, True, 0.25)]  # no candidate's validation: those are the trial's
+    assert asked[0] == (0, True, 0.25)  # no candidate's validation: those are the trial's
+    clock.set(17.0)  # 7 s left: the share (0.8 s) cannot hold the trial's first step
+    least = 4 * 0.25 + FINISH_MARGIN * 0.2  # its 4 training views and 2 validations
+    assert trials._first_deadline(validation) == pytest.approx(17.0 + once + least)
     clock.set(23.0)  # almost no time left: never past the method's end
     assert trials._first_deadline(validation) == 24.0
     unbudgeted = repacked._Trials(OptimizeConfig(steps=10), RunContext(), 0.0, None, [])

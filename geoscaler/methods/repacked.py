@@ -533,16 +533,22 @@ class _Trials:
 
     def _first_deadline(self, validation: Validation) -> float | None:
         """When the first trial ends (None: no budget): after what the race pays once, whatever
-        the layouts, and :data:`TRIAL_SHARE` of the time left after it. Paid once: the validation
-        views still to cache before they freeze and the baselines' scoring
+        the layouts, :data:`TRIAL_SHARE` of the time left after it, but never less than the
+        trial's own least (its first step's training views and the two validations every
+        loop owes, priced as the loop prices them). Paid once: the validation views still to
+        cache before they freeze and the baselines' scoring
         (:meth:`~geoscaler.optim.validation.Validation.seconds_needed`, with the loop's
-        :data:`~geoscaler.optim.loop.FINISH_MARGIN`); a share that had to pay them too left a
-        short budget's first trial no step."""
+        :data:`~geoscaler.optim.loop.FINISH_MARGIN`). A share that had to pay them too, or
+        that could not hold a step, left a short budget's first trial no step: its loop then
+        spent the race's time caching validation views."""
         if self.end is None:
             return None
-        now = self.context.clock.now()
-        once = FINISH_MARGIN * validation.seconds_needed(0, True, validation.view_cost)
-        return min(now + once + TRIAL_SHARE * max(self.end - now - once, 0.0), self.end)
+        now, view = self.context.clock.now(), validation.view_cost
+        once = FINISH_MARGIN * validation.seconds_needed(0, True, view)
+        owed = FINISH_MARGIN * validation.seconds_needed(2, True, view) - once
+        least = self.config.views_per_step * view + owed
+        share = max(TRIAL_SHARE * max(self.end - now - once, 0.0), least)
+        return min(now + once + share, self.end)
 
     @property
     def nothing_to_gain(self) -> bool:
