@@ -218,26 +218,25 @@ def test_a_method_the_lit_stage_does_not_follow_says_so(tmp_path, capsys):
     assert "lit (protocol 2): not run: the lit stage follows direct only" in capsys.readouterr().out
 
 
-def test_the_lit_stage_is_priced_at_least_at_its_views_and_a_few_steps_of_unlit_views():
-    from geoscaler.optim.lit import LEAST_STEPS
-    from geoscaler.pipeline.lit import lit_stage_may_fit
+def test_the_lit_stage_is_priced_before_it_runs_as_its_own_check_prices_it(mesh):
+    from geoscaler.optim.lit import LEAST_STEPS, least_seconds, lit_price
 
-    settings = LitSettings()
-    views = 3 * settings.validation_views + LEAST_STEPS * settings.views_per_step  # 24 + 20
-    least = views * 0.2
-    assert lit_stage_may_fit(0.2, least)
-    assert not lit_stage_may_fit(0.2, least - 0.01)
+    settings = LitSettings(validation_views=2, pool_views=4, views_per_step=2)
+    # one second a reading: the view cached and the start's score there take 1 s each
+    price = lit_price(mesh, flat_start(mesh), {}, SlowClock(), settings, "cpu", QUICK)
+    assert price == least_seconds(1.0, 1.0, 6, 1, settings) == 6 * 2 + LEAST_STEPS * 2
+    clock = SlowClock()  # the stage's own check takes the same price: 22 s do not hold it
+    _, facts = optimize_lit(mesh, flat_start(mesh), {}, Budget(clock, clock.now(), 21.0),
+                            settings, "cpu", evaluation=QUICK)  # fmt: skip
+    assert facts.stopped_by == NOT_AFFORDED
 
 
 def test_a_lit_share_too_short_for_the_stage_goes_to_the_method_before_it():
     from geoscaler.pipeline.job import lit_share
-    from geoscaler.pipeline.lit import LIT_SHARE, lit_stage_may_fit
+    from geoscaler.pipeline.lit import LIT_SHARE
 
-    assert lit_stage_may_fit(0.2, LIT_SHARE * 20.0)  # 10 s hold 44 views of 0.2 s
-    assert lit_share(True, 20.0, 0.2) == LIT_SHARE * 20.0
-    assert lit_share(True, 15.0, 0.2) == 0.0  # 7.5 s do not: the method has all 15
-    assert lit_share(False, 20.0, 0.2) == 0.0  # no lit stage
-    assert lit_share(True, None, 0.2) == 0.0  # no budget: the stage runs its steps after
+    assert lit_share(20.0, 9.0) == LIT_SHARE * 20.0  # 10 s hold a stage of 9
+    assert lit_share(15.0, 9.0) == 0.0  # 7.5 s do not: the method has all 15
 
 
 def test_a_lit_stage_the_time_left_cannot_hold_spends_nothing(mesh, monkeypatch):
@@ -250,7 +249,7 @@ def test_a_lit_stage_the_time_left_cannot_hold_spends_nothing(mesh, monkeypatch)
     monkeypatch.setattr(lit_stage, "optimize_lit", untouched)
     monkeypatch.setattr(lit_stage, "ship_asset", untouched)
     result = MethodResult([None])
-    budget = Budget(ManualClock(), 0.0, 8.0)  # 8 s left; 44 views of 0.2 s need 8.8
-    out = lit_stage.train_lit(mesh, PLAN, "direct", result, None, budget, "cpu", view_seconds=0.2)
+    budget = Budget(ManualClock(), 0.0, 8.0)  # 8 s left for a stage priced at 8.8
+    out = lit_stage.train_lit(mesh, PLAN, "direct", result, None, budget, "cpu", price=8.8)
     assert out.lit.stopped_by == NOT_AFFORDED and not out.lit.clears_floor
     assert out.textures == result.textures

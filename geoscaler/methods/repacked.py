@@ -643,8 +643,8 @@ class _Phase:
         config, context, started: the method's loop settings, context and start.
         steps_before: steps the race made before this phase.
         first: the first phase counts its budget from the method's start (its views are cached
-            in the whole run's caching window) and reports the caching; later ones count from
-            their own start.
+            in the run's caching window, up to its own end) and reports the caching; later ones
+            count from their own start.
         last: the phase that ends the race (it reports the end).
     """
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
-from geoscaler.clock import Budget
+from geoscaler.clock import Budget, Clock
 from geoscaler.color import srgb_to_linear
 from geoscaler.mesh import TexturedMesh
 from geoscaler.optim.adamw import AdamW
@@ -211,6 +211,24 @@ class LitMaps:
                 self.values[id(pixels)].copy_(torch.from_numpy(stored))
 
 
+def lit_price(
+    original: TexturedMesh,
+    start: TexturedMesh,
+    baselines: Mapping[str, TexturedMesh],
+    clock: Clock,
+    settings: LitSettings = LitSettings(),
+    device: torch.device | str | None = None,
+    evaluation: Evaluation | None = None,
+) -> float:
+    """What :func:`optimize_lit` of these maps costs at least, in seconds on ``clock``
+    (:meth:`LitRun.least_cost`: one lit view cached and one score timed here, the rest
+    priced from them; 0 where nothing would be trained), so that a caller can decide before
+    it spends the time whether the stage will run at all."""
+    evaluation = replace(evaluation or Evaluation(), reference_max_size=None)
+    run = LitRun(original, start, baselines, settings, device, evaluation)
+    return run.least_cost(clock) if run.maps.values else 0.0
+
+
 def least_seconds(
     view_seconds: float, score_seconds: float, views: int, candidates: int, settings: LitSettings
 ) -> float:
@@ -267,11 +285,11 @@ class LitRun:
         self.optimiser = AdamW(self.maps.parameters(), lr=settings.lr, weight_decay=0.0)
         self.facts = LitFacts(validation_views=settings.validation_views)
 
-    def affordable(self, budget: Budget) -> bool:
-        """Cache the first Q view and time it and the start's score there: whether ``budget``
-        holds caching every validation view, scoring every candidate on them and
-        :data:`LEAST_STEPS` steps (each priced as a view per training view)."""
-        clock, q = budget.clock, self.sets["Q"]
+    def least_cost(self, clock: Clock) -> float:
+        """Cache the first Q view and time it and the start's score there (on ``clock``): the
+        least this run costs (:func:`least_seconds`), caching every validation view, scoring
+        every candidate on them and :data:`LEAST_STEPS` steps."""
+        q = self.sets["Q"]
         began = clock.now()
         q.cache_next()
         view_seconds = clock.now() - began
@@ -279,9 +297,8 @@ class LitRun:
         q.psnr(lit_materials(self.candidates["start"], self.device, encoded=False), count=1)
         score_seconds = clock.now() - began
         views = sum(len(v.cameras) for v in self.sets.values())
-        least = least_seconds(view_seconds, score_seconds, views, len(self.candidates),
-                              self.settings)  # fmt: skip
-        return budget.fits(least)
+        return least_seconds(view_seconds, score_seconds, views, len(self.candidates),
+                             self.settings)  # fmt: skip
 
     def begin(self) -> None:
         """Cache the validation views, score the start and the baselines, set the floor."""
@@ -375,7 +392,7 @@ def optimize_lit(
     if not run.maps.values:
         facts.stopped_by, facts.clears_floor = "nothing to train", False
         return start, facts
-    if budget.limited and not run.affordable(budget):
+    if budget.limited and not budget.fits(run.least_cost(clock)):
         facts.stopped_by, facts.clears_floor = NOT_AFFORDED, False
         return start, facts
     run.begin()

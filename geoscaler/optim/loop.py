@@ -384,11 +384,13 @@ class _Caching:
             release_free_memory()
 
     def close(self) -> None:
-        """No more training views; cache the validation views left within the caching window
-        and the view memory (all of them, without a budget or a limit), and validate on those
-        from now on."""
+        """No more training views; cache the validation views left within the caching window,
+        the loop's own budget and the view memory (all of them, without a budget or a limit),
+        and validate on those from now on. A loop whose budget ends before the window (a
+        race's first trial) caches none past its end: they made the validations the race
+        still owes too costly for its time."""
         self.pool.cameras = self.pool.cameras[: len(self.pool)]
-        while self.window.left() > 0 and not self.memory_full():
+        while self.window.left() > 0 and self.budget.left() > 0 and not self.memory_full():
             if not self.validation.cache_next():
                 break
         self.validation.freeze()

@@ -48,7 +48,7 @@ from geoscaler.pipeline.arguments import (
     check_protocol,
     check_rules,
 )
-from geoscaler.pipeline.lit import LIT_SHARE, lit_stage_applies, lit_stage_may_fit, train_lit
+from geoscaler.pipeline.lit import LIT_SHARE, lit_stage_applies, lit_stage_price, train_lit
 from geoscaler.pipeline.rows import protocol_row, scored_row, validation_row
 from geoscaler.pipeline.shipping import (
     EVERY_MAP_FILTERS,
@@ -257,7 +257,14 @@ class _MethodRuns:
             self.renderer.reference_textures()  # made once, before a view is priced
             if not learned_fits(validation, seconds, reserve):
                 return not_run(name, outputs, seconds)
-        lit_seconds = lit_share(lit, seconds, validation.view_cost)
+        lit_seconds, price = 0.0, 0.0
+        if lit and seconds is not None:
+            if budget is not None:
+                began = clock.now()
+                price = self._lit_price(rule, outputs)
+                seconds -= clock.now() - began  # the priced view is spent, not the stage's
+            after = validation.seconds_needed(0, caching=False)  # the stage's budget keeps it
+            lit_seconds = lit_share(seconds, price + after)
         reserve_after = reserve + lit_seconds  # the lit stage's time follows the method
         context = RunContext(self.renderer, validation, self.controller,
                              self.observer.on_event, seconds, reserve_after, clock)  # fmt: skip
@@ -270,15 +277,24 @@ class _MethodRuns:
         if lit and result.uvs is None:
             after = validation.seconds_needed(0, caching=False)
             stage = Budget(clock, method_start, seconds, reserve + after)
-            plan = self.plan or SizePlan(rule, rule, rule)
             what = f"{name} x{rule.label}: lit views, seconds"
             result = train_lit(
-                self.mesh, plan, name, result, outputs.get("lanczos"), stage,
+                self.mesh, self._plan(rule), name, result, outputs.get("lanczos"), stage,
                 str(self.renderer.device), self.options.seed, self.options.steps, self.controller,
                 lambda done, total: self.observer.stage(what, done, total),
-                self.renderer.evaluation, validation.view_cost,
+                self.renderer.evaluation, price,
             )  # fmt: skip
         return result
+
+    def _plan(self, rule: SizeRule) -> SizePlan:
+        return self.plan or SizePlan(rule, rule, rule)
+
+    def _lit_price(self, rule: SizeRule, outputs: dict[str, MethodResult]) -> float:
+        """The lit stage's least cost at ``rule``, in seconds
+        (:func:`~geoscaler.pipeline.lit.lit_stage_price`)."""
+        device, evaluation = str(self.renderer.device), self.renderer.evaluation
+        lanczos = outputs.get("lanczos")
+        return lit_stage_price(self.mesh, self._plan(rule), lanczos, self.clock, device, evaluation)
 
     def finish(self) -> Comparison:
         """The rows with their gains over bicubic, ordered by distance, scale, then the
@@ -411,16 +427,14 @@ class _Stages:
         self.observer.stage("done", self.total, self.total)
 
 
-def lit_share(lit: bool, seconds: float | None, view_seconds: float) -> float:
+def lit_share(seconds: float, price: float) -> float:
     """Seconds of a learned method's ``seconds`` kept for the lit stage after it: its
-    :data:`~geoscaler.pipeline.lit.LIT_SHARE`, or none where there is no stage, no budget, or
-    that share cannot hold the stage even at its least
-    (:func:`~geoscaler.pipeline.lit.lit_stage_may_fit`, ``view_seconds`` an unlit validation
-    view's cost): the method then has the whole budget, and the stage whatever it leaves."""
-    if not lit or seconds is None:
-        return 0.0
+    :data:`~geoscaler.pipeline.lit.LIT_SHARE`, or none where that share cannot hold
+    ``price``, the stage's least cost (:func:`~geoscaler.pipeline.lit.lit_stage_price`) and
+    what the validation owes after it: the method then has the whole budget, and the stage
+    whatever it leaves."""
     share = LIT_SHARE * seconds
-    return share if lit_stage_may_fit(view_seconds, share) else 0.0
+    return share if price <= share else 0.0
 
 
 def learned_fits(validation: Validation, budget: float | None, reserve: float) -> bool:

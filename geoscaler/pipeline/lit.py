@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import replace
 
-from geoscaler.clock import Budget
+from geoscaler.clock import Budget, Clock
 from geoscaler.mesh import BASE_COLOR, TexturedMesh
 from geoscaler.methods import MethodResult, Shipping
 from geoscaler.optim.events import Controller
@@ -23,10 +23,9 @@ from geoscaler.optim.lit import (
     TRAINED,
     LitFacts,
     LitSettings,
-    least_seconds,
+    lit_price,
     optimize_lit,
 )
-from geoscaler.optim.validation_views import SET_NAMES
 from geoscaler.pipeline.shipping import every_map_by, ship_asset
 from geoscaler.protocol import Evaluation
 from geoscaler.render.lit import (
@@ -67,15 +66,37 @@ def lit_stage_applies(mesh: TexturedMesh, name: str, protocol: int) -> bool:
     )
 
 
-def lit_stage_may_fit(view_seconds: float, seconds: float) -> bool:
-    """Whether ``seconds`` may hold the lit stage at all: its least cost
-    (:func:`~geoscaler.optim.lit.least_seconds`) priced at ``view_seconds``, an unlit
-    validation view's cost, and no time to score. A lit view renders the same G-buffer and
-    reference as an unlit one and more, so where this says no, the stage's own check on its
-    first lit view would too (without spending that view)."""
-    settings = LitSettings()
-    views = len(SET_NAMES) * settings.validation_views
-    return least_seconds(view_seconds, 0.0, views, 0, settings) <= seconds
+def lit_stage_price(
+    mesh: TexturedMesh,
+    plan: SizePlan,
+    lanczos: MethodResult | None,
+    clock: Clock,
+    device: str | None,
+    evaluation: Evaluation | None = None,
+) -> float:
+    """What the lit stage costs at least on ``mesh`` (seconds on ``clock``,
+    :func:`~geoscaler.optim.lit.lit_price`), priced before the method runs on the class
+    filters' asset in place of its result (the same maps, sizes and candidates)."""
+    start, baselines = _candidates(mesh, plan, lanczos.textures if lanczos else None, lanczos)
+    return lit_price(mesh, start, baselines, clock, LitSettings(kept=KEPT), device, evaluation)
+
+
+def _candidates(
+    mesh: TexturedMesh,
+    plan: SizePlan,
+    textures: list | None,
+    lanczos: MethodResult | None,
+) -> tuple[TexturedMesh, dict[str, TexturedMesh]]:
+    """The lit stage's start (``textures`` as base colours, every other map by its class;
+    None: bicubic's) and its baselines (every map by Lanczos, by bicubic, and the class
+    filters where there is a Lanczos result)."""
+    baselines = {f: every_map_by(mesh, plan, f) for f in ("lanczos", "bicubic")}
+    if lanczos is not None:
+        baselines[CLASS_FILTERS] = ship_asset(mesh, plan, lanczos.textures, "lanczos")[0]
+    start = (
+        baselines["bicubic"] if textures is None else ship_asset(mesh, plan, textures, "direct")[0]
+    )
+    return start, baselines
 
 
 def train_lit(
@@ -91,12 +112,12 @@ def train_lit(
     controller: Controller | None = None,
     progress: Callable[[int, int], None] | None = None,
     evaluation: Evaluation | None = None,
-    view_seconds: float = 0.0,
+    price: float = 0.0,
 ) -> MethodResult:
     """``result`` (in the mesh's own layout) after the lit stage: its base colours and the
     maps the stage chose (:attr:`MethodResult.maps`), with :attr:`MethodResult.lit`. Where
-    ``budget`` cannot hold the stage even at its least (:func:`lit_stage_may_fit`), nothing
-    is done and the facts say so.
+    ``budget`` cannot hold ``price``, the stage's least cost (:func:`lit_stage_price`),
+    nothing is done and the facts say so.
 
     Args:
         mesh: the original asset.
@@ -113,15 +134,12 @@ def train_lit(
         controller: stops the stage (its best so far ships) or pauses it.
         progress: ``progress(done, total)`` after each step (:func:`optimize_lit`).
         evaluation: the validation views' size (default: the protocol's).
-        view_seconds: an unlit validation view's cost (0: unknown, the stage's own check
-            alone decides).
+        price: the stage's least cost, priced before (0: unknown, the stage's own check
+            on its first view decides).
     """
-    if budget.limited and not lit_stage_may_fit(view_seconds, budget.left()):
+    if budget.limited and not budget.fits(price):
         return replace(result, lit=LitFacts(stopped_by=NOT_AFFORDED, clears_floor=False))
-    start = ship_asset(mesh, plan, result.textures, "direct")[0]
-    baselines = {f: every_map_by(mesh, plan, f) for f in ("lanczos", "bicubic")}
-    if lanczos is not None:
-        baselines[CLASS_FILTERS] = ship_asset(mesh, plan, lanczos.textures, "lanczos")[0]
+    start, baselines = _candidates(mesh, plan, result.textures, lanczos)
     steps = steps or (None if budget.limited else LIT_STEPS)
     settings = LitSettings(steps=steps, seed=seed, kept=KEPT)
     best, facts = optimize_lit(
