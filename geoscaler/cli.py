@@ -267,7 +267,9 @@ def cmd_batch(args: argparse.Namespace) -> int:
     return command(args, settings)
 
 
-def _add_network_arguments(parser: argparse.ArgumentParser, variants: str, uv_default: str) -> None:
+def _add_network_arguments(
+    parser: argparse.ArgumentParser, variants: str, uv_default: str
+) -> None:
     """Flags of the learned methods: what they train through, ``direct``'s UV layout (unset:
     ``uv_default``); the GeoScaler network's variant(s), preset, VGG-19 weights."""
     parser.add_argument(

@@ -598,3 +598,38 @@ def test_without_backtracking_no_candidate_is_validated_as_the_sets_freeze(scene
     result = run(scene, steps=8, lr=50.0, warmup_steps=1)
     validated = [h["step"] for h in result.history if "validation_psnr_fg" in h]
     assert validated == [8] and result.backtracks == 0
+
+
+def test_closing_the_caching_caches_no_view_past_the_loops_own_end():
+    """A loop whose budget ends before the caching window (a race's first trial) stops
+    caching validation views at its end; one within its budget caches to the window's end."""
+    from types import SimpleNamespace
+
+    class Pool:  # a training pool of no view
+        cameras: list = []
+        nbytes = 0
+
+        def __len__(self) -> int:
+            return 0
+
+    def closed(loop_end: float) -> list[float]:
+        """When each validation view was cached (one second each) as a loop ending at
+        ``loop_end`` seconds of a 20 s budget closes its caching."""
+        clock, cached = ManualClock(), []
+
+        def cache_next() -> bool:
+            clock.advance(1.0)
+            cached.append(clock.now())
+            return True
+
+        validation = SimpleNamespace(cache_next=cache_next, freeze=lambda: None, sets={},
+                                     num_views=0)  # fmt: skip
+        train = SimpleNamespace(views=Pool(), nbytes=0)
+        config = OptimizeConfig(time_budget=20.0, view_memory=None)
+        budget = Budget(clock, 0.0, 20.0, 20.0 - loop_end)
+        loop_module._Caching(train, validation, config, budget, lambda *a, **k: None).close()
+        return cached
+
+    window = loop_module.CACHING_SHARE * 20.0  # from the budget's start: 8 s
+    assert closed(20.0) == [float(s) for s in range(1, int(window) + 1)]
+    assert closed(3.0) == [1.0, 2.0, 3.0]  # the last begun before the loop's end

@@ -139,7 +139,9 @@ class LitMaps:
         kept: slots whose images stay as they are (an image another slot trains is trained).
     """
 
-    def __init__(self, asset: TexturedMesh, device: torch.device | str, kept: Sequence[str] = ()):
+    def __init__(
+        self, asset: TexturedMesh, device: torch.device | str, kept: Sequence[str] = ()
+    ):
         self.start = asset
         self.values: dict[int, torch.Tensor] = {}  # id(image) -> (h, w, 3) stored values
         self.images: dict[int, np.ndarray] = {}

@@ -689,10 +689,8 @@ class TrainingLoop:
             self._validate_start()
             if config.backtrack is not None:  # is the step size hurting already?
                 state.check_at = state.step
-        due = state.step % config.validate_every == 0 or state.step in (
-            config.steps,
-            state.check_at,
-        )
+        due = state.step % config.validate_every == 0 or state.step in (config.steps,
+                                                                         state.check_at)
         if not due:
             return False
         finished = finished_candidate(self.model, self.reachable())

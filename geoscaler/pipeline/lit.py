@@ -93,10 +93,9 @@ def _candidates(
     baselines = {f: every_map_by(mesh, plan, f) for f in ("lanczos", "bicubic")}
     if lanczos is not None:
         baselines[CLASS_FILTERS] = ship_asset(mesh, plan, lanczos.textures, "lanczos")[0]
-    start = (
-        baselines["bicubic"] if textures is None else ship_asset(mesh, plan, textures, "direct")[0]
-    )
-    return start, baselines
+    if textures is None:
+        return baselines["bicubic"], baselines
+    return ship_asset(mesh, plan, textures, "direct")[0], baselines
 
 
 def train_lit(
