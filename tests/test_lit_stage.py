@@ -219,11 +219,11 @@ def test_a_method_the_lit_stage_does_not_follow_says_so(tmp_path, capsys):
 
 
 def test_the_lit_stage_is_priced_before_it_runs_as_its_own_check_prices_it(mesh):
-    from geoscaler.optim.lit import LEAST_STEPS, least_seconds, lit_price
+    from geoscaler.optim.lit import LEAST_STEPS, LitRun, least_seconds
 
     settings = LitSettings(validation_views=2, pool_views=4, views_per_step=2)
     # one second a reading: the view cached and the start's score there take 1 s each
-    price = lit_price(mesh, flat_start(mesh), {}, SlowClock(), settings, "cpu", QUICK)
+    price = LitRun(mesh, flat_start(mesh), {}, settings, "cpu", QUICK).least_cost(SlowClock())
     assert price == least_seconds(1.0, 1.0, 6, 1, settings) == 6 * 2 + LEAST_STEPS * 2
     clock = SlowClock()  # the stage's own check takes the same price: 22 s do not hold it
     _, facts = optimize_lit(mesh, flat_start(mesh), {}, Budget(clock, clock.now(), 21.0),

@@ -213,24 +213,6 @@ class LitMaps:
                 self.values[id(pixels)].copy_(torch.from_numpy(stored))
 
 
-def lit_price(
-    original: TexturedMesh,
-    start: TexturedMesh,
-    baselines: Mapping[str, TexturedMesh],
-    clock: Clock,
-    settings: LitSettings = LitSettings(),
-    device: torch.device | str | None = None,
-    evaluation: Evaluation | None = None,
-) -> float:
-    """What :func:`optimize_lit` of these maps costs at least, in seconds on ``clock``
-    (:meth:`LitRun.least_cost`: one lit view cached and one score timed here, the rest
-    priced from them; 0 where nothing would be trained), so that a caller can decide before
-    it spends the time whether the stage will run at all."""
-    evaluation = replace(evaluation or Evaluation(), reference_max_size=None)
-    run = LitRun(original, start, baselines, settings, device, evaluation)
-    return run.least_cost(clock) if run.maps.values else 0.0
-
-
 def least_seconds(
     view_seconds: float, score_seconds: float, views: int, candidates: int, settings: LitSettings
 ) -> float:
@@ -267,6 +249,9 @@ class LitRun:
         device: torch.device | str | None,
         evaluation: Evaluation,
     ):
+        """``evaluation``: the validation views' size and protocol views; originals are read
+        uncapped (its reference cap is ignored)."""
+        evaluation = replace(evaluation, reference_max_size=None)
         self.settings = settings
         renderer = Renderer(original, device, evaluation)
         self.device = renderer.device
@@ -388,8 +373,7 @@ def optimize_lit(
     (default: the protocol's, originals uncapped; its reference cap is ignored).
     """
     clock = budget.clock
-    evaluation = replace(evaluation or Evaluation(), reference_max_size=None)
-    run = LitRun(original, start, baselines, settings, device, evaluation)
+    run = LitRun(original, start, baselines, settings, device, evaluation or Evaluation())
     facts = run.facts
     if not run.maps.values:
         facts.stopped_by, facts.clears_floor = "nothing to train", False

@@ -22,8 +22,8 @@ from geoscaler.optim.lit import (
     NOT_AFFORDED,
     TRAINED,
     LitFacts,
+    LitRun,
     LitSettings,
-    lit_price,
     optimize_lit,
 )
 from geoscaler.pipeline.shipping import every_map_by, ship_asset
@@ -74,11 +74,15 @@ def lit_stage_price(
     device: str | None,
     evaluation: Evaluation | None = None,
 ) -> float:
-    """What the lit stage costs at least on ``mesh`` (seconds on ``clock``,
-    :func:`~geoscaler.optim.lit.lit_price`), priced before the method runs on the class
-    filters' asset in place of its result (the same maps, sizes and candidates)."""
+    """What the lit stage costs at least on ``mesh``, in seconds on ``clock``
+    (:meth:`~geoscaler.optim.lit.LitRun.least_cost`: one lit view cached and one score timed
+    here, the rest priced from them, as the stage's own check does; 0 where it would train
+    nothing), priced before the method runs on the class filters' asset in place of its
+    result (the same maps, sizes and candidates)."""
     start, baselines = _candidates(mesh, plan, lanczos.textures if lanczos else None, lanczos)
-    return lit_price(mesh, start, baselines, clock, LitSettings(kept=KEPT), device, evaluation)
+    settings = LitSettings(kept=KEPT)
+    run = LitRun(mesh, start, baselines, settings, device, evaluation or Evaluation())
+    return run.least_cost(clock) if run.maps.values else 0.0
 
 
 def _candidates(
