@@ -35,7 +35,10 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from geoscaler.io import load_mesh
+from geoscaler.mesh import TexturedMesh
 from geoscaler.pipeline.downsampling import product_evaluation
 from geoscaler.protocol import PROTOCOL_EVALUATION
 from geoscaler.render.cameras import view_set_cameras
@@ -86,12 +89,35 @@ def run_downsample(
         "shipped": details.get("shipped"),
         "training_views": details.get("training_views"),
         "validation_views": details.get("validation_views"),
-        "textures": load_mesh(output).materials,
+        "output": load_mesh(output),
     }
 
 
+def corner_uvs_of(mesh: TexturedMesh, output: TexturedMesh) -> np.ndarray:
+    """``(F, 3, 2)`` UVs of ``output``'s face corners in ``mesh``'s face order: a job with
+    ``--uv auto`` may ship a new layout, and the writer may order faces by material. Faces are
+    matched by their corners' positions (the job keeps the geometry).
+
+    Raises:
+        SystemExit: the output's faces are not the input's."""
+
+    def keys(m: TexturedMesh) -> np.ndarray:
+        return np.round(m.positions[m.faces].reshape(len(m.faces), 9).astype(np.float64), 5)
+
+    mine, theirs = keys(mesh), keys(output)
+    if mine.shape != theirs.shape:
+        raise SystemExit(f"the output has {len(theirs)} faces, the input {len(mine)}")
+    order_in, order_out = np.lexsort(mine.T[::-1]), np.lexsort(theirs.T[::-1])
+    if not np.array_equal(mine[order_in], theirs[order_out]):
+        raise SystemExit("the output's faces are not the input's: cannot score it in its UVs")
+    uvs = np.empty((len(mesh.faces), 3, 2), np.float32)
+    uvs[order_in] = output.corner_uvs()[order_out]
+    return uvs
+
+
 def score_runs(mesh_path: Path, scale: int, distances: list[float], runs: list[dict]) -> dict:
-    """PSNR-fg of bicubic and Lanczos per distance; each run gets its own ``psnr`` per distance.
+    """PSNR-fg of bicubic and Lanczos per distance; each run gets its own ``psnr`` per distance,
+    its output rendered in its own UVs (:func:`corner_uvs_of`).
 
     The shipped textures have the sizes the product gives (``scale`` on the full-resolution
     original); bicubic and Lanczos resize the originals to the same sizes; every image is
@@ -114,9 +140,11 @@ def score_runs(mesh_path: Path, scale: int, distances: list[float], runs: list[d
         for name, textures in filters.items():
             filter_psnr[name][distance] = mean_metrics(cache.score(textures))["psnr_fg"]
         for run in runs:
-            shipped = [m.base_color_texture for m in run["textures"]]
+            output = run["output"]
+            shipped = [m.base_color_texture for m in output.materials]
             textures = [None if s is None else t for s, t in zip(sizes, shipped, strict=True)]
-            run["psnr"][distance] = mean_metrics(cache.score(textures))["psnr_fg"]
+            uvs = corner_uvs_of(mesh, output)  # its own layout where it ships a new one
+            run["psnr"][distance] = mean_metrics(cache.score(textures, uvs))["psnr_fg"]
         del cache, views  # the next set's caches replace these
     return filter_psnr
 
@@ -158,7 +186,7 @@ def main() -> int:
                     )
             filters = score_runs(entry.path, scale, args.sets, runs)
             for run in runs:
-                del run["textures"]
+                del run["output"]
                 best = {d: max(f[d] for f in filters.values()) for d in args.sets}
                 run["gain_db"] = {d: run["psnr"][d] - filters["bicubic"][d] for d in args.sets}
                 run["lanczos_gain_db"] = {
