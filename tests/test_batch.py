@@ -236,6 +236,22 @@ def test_an_interrupted_job_leaves_nothing(library, tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_ctrl_c_while_the_summary_is_written_waits_for_it(library, tmp_path, monkeypatch):
+    # the second of two Ctrl-C can land just as the first has ended the run: the summary is
+    # written whole, then the batch stops as interrupted
+    monkeypatch.setattr(geoscaler.batch, "_run", lambda *args: False)  # no asset ran
+    summarise = geoscaler.batch._summarise
+
+    def interrupted(*args):
+        os.kill(os.getpid(), signal.SIGINT)
+        return summarise(*args)
+
+    monkeypatch.setattr(geoscaler.batch, "_summarise", interrupted)
+    assert geoscaler.cli.main(["batch", str(library), "-o", str(tmp_path), *JOB]) == 130
+    assert {row["status"] for row in summary(tmp_path)["assets"]} == {NOT_RUN}
+    assert all((tmp_path / name).exists() for name in SUMMARY_FILES)
+
+
 WORKER = textwrap.dedent(
     """
     import sys

@@ -20,8 +20,10 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import signal
 import sys
-from collections.abc import Iterator, Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -108,19 +110,37 @@ def command(args: Any, settings: dict[str, Any]) -> int:
             f"batch: {len(assets)} assets in {in_dir}: {len(todo)} to run, {len(results)} "
             f"finished before (skipped); engine {args.engine}, {workers}"
         )
-        start = WALL_CLOCK.now()
+        start, stopped = WALL_CLOCK.now(), False
         try:
             stopped = _run(todo, settings, key, args, results)
         finally:
-            wall = WALL_CLOCK.now() - start
-            run = {"engine": args.engine, "workers": workers, "settings": key}
-            document, written = _summarise(in_dir, out_dir, assets, todo, results, run, wall)
-            _remove_empty(created)
+            with _ctrl_c_deferred() as interrupted:
+                wall = WALL_CLOCK.now() - start
+                run = {"engine": args.engine, "workers": workers, "settings": key}
+                document, written = _summarise(in_dir, out_dir, assets, todo, results, run, wall)
+                _remove_empty(created)
+            stopped = stopped or interrupted()
     failed = sum(row["status"] == FAILED for row in document["assets"])
     print(f"total: {document['total']['status']}; wrote {', '.join(map(str, written))}")
     if stopped:
         raise KeyboardInterrupt
     return min(failed, 125)
+
+
+@contextlib.contextmanager
+def _ctrl_c_deferred() -> Iterator[Callable[[], bool]]:
+    """Write the summary whole: a Ctrl-C while it is written (the second of two, a moment
+    after the first ended the run) is held until it is done; ``interrupted()`` then says
+    whether one came. Outside the main thread signals do not reach this code anyway."""
+    came: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: False
+        return
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: came.append(signum))
+    try:
+        yield lambda: bool(came)
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _check_arguments(args: Any, in_dir: Path, out_dir: Path) -> None:
