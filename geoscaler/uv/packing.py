@@ -365,8 +365,8 @@ def pack(
             guess = rough.texels_per_unit * factor
             best = search.first_fit(guess)
             if best is not None:
-                return search.bisect(best, guess * COARSE_SPAN)
-    best = search.bisect(None, every_texel, low=every_texel / 16)
+                return search.bisect(best.texels_per_unit, guess * COARSE_SPAN, best)
+    best = search.bisect(every_texel / 16, every_texel)
     if best is None and search.late():
         raise PackingError("the time budget left no time to pack the UV charts")
     if best is None:
@@ -412,11 +412,11 @@ class _Search:
                 return packed
         return None
 
-    def bisect(self, best: Packed | None, high: float, low: float | None = None) -> Packed | None:
-        """The densest packing a bisection finds between ``best``'s density (or ``low``, not
-        known to fit) and ``high`` (not known to fit): at most :data:`SEARCH_STEPS` looks,
-        until the bracket is :data:`SEARCH_RATIO` narrow or the budget ends."""
-        low = best.texels_per_unit if best is not None else low
+    def bisect(self, low: float, high: float, best: Packed | None = None) -> Packed | None:
+        """The densest packing a bisection finds between densities ``low`` (``best``'s where
+        given, else not known to fit) and ``high`` (not known to fit), or ``best``: at most
+        :data:`SEARCH_STEPS` looks, until the bracket is :data:`SEARCH_RATIO` narrow or the
+        budget ends."""
         for _ in range(SEARCH_STEPS):
             if self.late() or high <= low * SEARCH_RATIO:
                 break
