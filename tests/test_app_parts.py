@@ -132,9 +132,12 @@ def test_uv_pictures_draw_texture_outlines_and_warp(app_modules, small_demo):
     surface.release()
 
 
-def finished_run(mesh, method: str, steps: int, validate_every: int, renderer: str = "exact"):
-    """The state of a small run of ``method`` on ``mesh`` (4x, 64-pixel views), run to its end,
-    validated every ``validate_every`` steps exactly (no backtracking, which adds validations)."""
+def finished_run(
+    mesh, method: str, steps: int, validate_every: int, renderer: str = "exact", uv: str = "auto"
+):
+    """The state of a small run of ``method`` on ``mesh`` (4x, 64-pixel views, ``uv`` layout),
+    run to its end, validated every ``validate_every`` steps exactly (no backtracking, which
+    adds validations; ``uv="keep"``: no layout race, whose trials validate at their ends)."""
     training = import_app_module("training")
     settings = training.TrainingSettings(
         method=method,
@@ -144,6 +147,7 @@ def finished_run(mesh, method: str, steps: int, validate_every: int, renderer: s
         evaluation=ONE_SMALL_VIEW,
         optimize={"pool_views": 2, "validate_every": validate_every, "backtrack": None},
         renderer=renderer,
+        uv=uv,
     )
     run = training.Training(mesh, settings)
     run.start()
@@ -154,7 +158,7 @@ def finished_run(mesh, method: str, steps: int, validate_every: int, renderer: s
 
 
 def test_training_runs_off_thread_and_reports(small_demo):
-    state = finished_run(small_demo, "direct", steps=12, validate_every=4)
+    state = finished_run(small_demo, "direct", steps=12, validate_every=4, uv="keep")
     assert state.phase == "done" and state.step == 12
     assert state.steps == list(range(1, 13)) and all(math.isfinite(x) for x in state.losses)
     assert state.validation_steps == [4, 8, 12]

@@ -154,7 +154,11 @@ def test_a_new_layout_below_the_own_one_on_any_set_stays_out_of_the_race():
     assert _winner(trials, layouts, facts, 5) == "repack"
 
 
-def test_a_first_trial_of_no_step_ends_the_race_and_its_layout_goes_on(monkeypatch):
+def fake_race(monkeypatch, first_made: int, first_stopped_by: str, steps: int = 10):
+    """``--uv auto``'s race with every phase's loop faked: the first trial makes
+    ``first_made`` steps and stops for ``first_stopped_by``, later phases make the steps they
+    are given. Returns the result, the facts, ``(layout, steps)`` per phase and how many times
+    the new layouts were planned."""
     from types import SimpleNamespace
 
     import geoscaler.methods.repacked as repacked
@@ -162,13 +166,13 @@ def test_a_first_trial_of_no_step_ends_the_race_and_its_layout_goes_on(monkeypat
     from geoscaler.optim.loop import OptimizeConfig
     from geoscaler.optim.validation import Scores
 
-    fits = []
+    fits, planned = [], []
 
     def fit(self, mesh, rule, layout, model, loop_end, reserve, steps, facts=None, **handover):
-        made = 0 if self.first else steps  # the first trial's share went on caching
+        made, stopped_by = (first_made, first_stopped_by) if self.first else (steps, "steps")
         fits.append((layout.name, made))
         scores = Scores({"Q": 40.0}, {"Q": np.array([40.0, 41.0, 39.0])})
-        loop = LoopFacts(made, 0, scores, True, {}, "time budget", 0.0, 4, {"Q": 3}, 0)
+        loop = LoopFacts(made, 0, scores, True, {}, stopped_by, 0.0, 4, {"Q": 3}, 0)
         return MethodResult([None], loop=loop)
 
     monkeypatch.setattr(repacked._Phase, "fit", fit)
@@ -180,20 +184,59 @@ def test_a_first_trial_of_no_step_ends_the_race_and_its_layout_goes_on(monkeypat
         sizes=[(64, 64)],
         seconds_needed=lambda *args: 0.0,
     )
-    cpu = SimpleNamespace(device="cpu")
-    layouts = {
-        name: SimpleNamespace(name=name, validation=validation, atlas=None, starts=[], renderer=cpu)
-        for name in ("keep", "repack")
-    }
+
+    def layout(name: str) -> SimpleNamespace:
+        cpu = SimpleNamespace(device="cpu")
+        return SimpleNamespace(
+            name=name, validation=validation, atlas=None, starts=[], renderer=cpu
+        )
+
+    def later() -> dict:
+        planned.append(True)
+        return {"repack": layout("repack")}
+
     model = SimpleNamespace(restore=lambda textures: None)
     facts = LayoutFacts(uv="auto")
-    config = OptimizeConfig(steps=10, pool_views=4)
-    result = repacked.raced(
-        None, None, layouts, lambda *args: model, config, RunContext(), 0.0, facts
-    )
+    config = OptimizeConfig(steps=steps, pool_views=4)
+    own = {"keep": layout("keep")}
+    start_model = lambda *args: model  # noqa: E731
+    result = repacked.raced(None, None, own, start_model, config, RunContext(), 0.0, facts, later)
+    return result, facts, fits, len(planned)
+
+
+def test_a_first_trial_of_no_step_ends_the_race_and_its_layout_goes_on(monkeypatch):
+    result, facts, fits, plans = fake_race(monkeypatch, 0, "time budget")
     assert fits == [("keep", 0), ("keep", 10)]  # no trial of the new layout; the own goes on
     assert list(facts.race) == ["keep"] and facts.used == "keep"
     assert result.loop.steps == 10
+    assert plans == 0 and "no step" in facts.skipped  # no layout planned for a race that ended
+
+
+def test_a_first_trial_with_nothing_visible_to_gain_ships_before_any_layout_is_planned(
+    monkeypatch,
+):
+    from geoscaler.optim.loop import NOTHING_TO_GAIN
+
+    result, facts, fits, plans = fake_race(monkeypatch, 2, NOTHING_TO_GAIN)
+    assert fits == [("keep", 2)] and result.loop.steps == 2  # it ships what the trial found
+    assert plans == 0 and "beyond what is visible" in facts.skipped
+    assert facts.used == "keep"
+
+
+def test_the_new_layouts_are_planned_after_the_own_layouts_trial(cube, monkeypatch):
+    import geoscaler.methods.repacked as repacked
+
+    events, planned_after = [], []
+    plain = repacked.plan_layout
+
+    def plan(*args, **kwargs):
+        planned_after.append([event.step for event in events if event.phase == "step"])
+        return plain(*args, **kwargs)
+
+    monkeypatch.setattr(repacked, "plan_layout", plan)
+    result = raced(cube, steps=10, on_event=events.append)
+    assert planned_after == [[1, 2]]  # the own layout's 2 trial steps came first
+    assert list(method_details(result)["race"]) == ["keep", "repack"]
 
 
 def test_the_first_trials_share_is_of_the_time_left_after_what_the_race_pays_once():
@@ -279,7 +322,7 @@ def test_an_aligned_layout_sparser_than_the_own_one_is_not_weighed(monkeypatch):
         monkeypatch.setattr(repacked, "plan_layout", plan)
         facts = LayoutFacts(uv="auto")
         validation = SimpleNamespace(clock=WALL_CLOCK)
-        offered = repacked._timely_layouts(None, None, None, None, validation, 0.0, None, facts)
+        offered = repacked._timely_layouts(None, None, None, None, validation, None, facts)
         return [atlas.aligned for atlas in offered], facts
 
     # Rounded down to powers of two of the original's texels, half the own density: its bake
@@ -330,6 +373,7 @@ def test_fewer_steps_than_layouts_run_the_first_layout_alone(cube):
     result = raced(cube, steps=1)
     assert method_details(result)["steps"] == 1 and "race" not in method_details(result)
     assert method_details(result)["layout_used"] == "keep" and result.uvs is None
+    assert "too few steps" in method_details(result)["layout_skipped"]  # none planned
 
 
 def test_the_race_reports_one_run_of_steps_and_one_end(cube):
@@ -371,16 +415,47 @@ def test_a_new_layouts_validation_prices_the_taps_it_has_still_to_find(cube):
     )
 
 
-def test_a_budget_without_time_to_plan_and_bake_keeps_the_own_layout(cube):
+def test_a_budget_without_time_for_a_trial_step_keeps_the_own_layout_unplanned(cube):
     from geoscaler.render.renderer import Renderer
 
     context = RunContext(Renderer(cube, "cpu", QUICK), time_budget=0.05)
     result = run_method("direct", cube, 4, options("auto"), context)
     assert method_details(result)["layout_used"] == "keep" and result.uvs is None
     assert method_details(result)["layout_skipped"] == (
+        "the first trial made no step in its share of the time"
+    )
+    assert "layout" not in method_details(result) and method_details(result)["steps"] == 0
+
+
+def test_no_layout_is_planned_where_the_time_left_cannot_hold_its_plan_and_bake(cube):
+    from geoscaler.clock import ManualClock
+    from geoscaler.methods.registry import LayoutFacts
+    from geoscaler.methods.repacked import PREPARING_SHARE, _timely_layouts, bake_seconds
+    from geoscaler.optim.loop import OptimizeConfig
+    from geoscaler.optim.validation import Validation, validation_view_sets
+    from geoscaler.render.renderer import Renderer
+    from geoscaler.resize.sizes import SizeRule
+
+    clock = ManualClock(100.0)
+    renderer = Renderer(cube, "cpu", QUICK)
+    validation = Validation(validation_view_sets(renderer), [(64, 64)], clock=clock)
+    validation.costs.view_cost.add(1.0)  # a validation view took 1 s: so does the bake
+    baking = bake_seconds([(64, 64)], renderer.reference_maps(), renderer, 1.0)
+    config = OptimizeConfig(pool_views=8)
+    rule = SizeRule(scale=4)
+
+    def offered(end: float) -> tuple[int, LayoutFacts]:
+        facts = LayoutFacts(uv="auto")
+        return len(_timely_layouts(cube, rule, renderer, config, validation, end, facts)), facts
+
+    # The plan's share of the time left cannot hold the bake: nothing planned.
+    count, facts = offered(end=100.0 + 0.9 * baking / PREPARING_SHARE)
+    assert count == 0 and facts.skipped == (
         "the time budget left no time to plan and bake a new layout"
     )
-    assert "layout" not in method_details(result) and "race" not in method_details(result)
+    assert facts.planned is None
+    count, facts = offered(end=100.0 + 1000 * baking)  # time enough: the layout is offered
+    assert count == 1 and facts.skipped is None and facts.planned is not None
 
 
 def test_the_bake_is_priced_at_a_validation_views_cost_per_sample():

@@ -15,7 +15,7 @@ the two layouts on that shared validation (:func:`raced`).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -74,8 +74,9 @@ below the best filter in the mesh's own layout on any set and still get a trial
 (:func:`start_below`): a trial's few steps do not make up more. Provisional: not yet
 checked against the trials' outcomes on the development set."""
 PREPARING_SHARE = 0.4
-"""Under a time budget, the share of the method's time by which the new layout is planned and
-baked, the rest left to the steps: the packing's search stops there, the cut's plan is not
+"""Under a time budget, the share of the time left when planning starts (``--uv auto``: after
+the own layout's trial) by which the new layouts are planned and baked, the rest left to the
+steps: the packing's search stops there, the cut's plan is not
 made where it would end later (:func:`~geoscaler.uv.atlas.repack`), nor the bake where its
 estimate would (:func:`bake_seconds`: the mesh's own layout goes on)."""
 
@@ -267,14 +268,20 @@ def repacked_direct(
         validation = Validation(validation_view_sets(renderer), sizes, clock=context.clock)
     facts = LayoutFacts(uv=mode)
     end = _method_end(config, context, started)
-    atlases = _timely_layouts(mesh, rule, renderer, config, validation, started, end, facts)
     own = Layout(renderer.relaid(mesh.uvs, memo), validation)
-    new = {
-        name: _new_layout(mesh, atlas, renderer, validation, sizes, memo)
-        for name, atlas in zip(NEW_LAYOUTS, atlases, strict=False)
-    }
-    layouts = {"keep": own, **new} if mode == "auto" or not new else new
-    return raced(mesh, rule, layouts, start_model, config, context, started, facts)
+
+    def planned() -> dict[str, Layout]:
+        atlases = _timely_layouts(mesh, rule, renderer, config, validation, end, facts)
+        return {
+            name: _new_layout(mesh, atlas, renderer, validation, sizes, memo)
+            for name, atlas in zip(NEW_LAYOUTS, atlases, strict=False)
+        }
+
+    if mode == "auto":
+        layouts, later = {"keep": own}, planned
+    else:
+        layouts, later = planned() or {"keep": own}, None
+    return raced(mesh, rule, layouts, start_model, config, context, started, facts, later)
 
 
 def _new_layout(
@@ -302,10 +309,16 @@ def raced(
     context: RunContext,
     started: float,
     facts: LayoutFacts,
+    later: Callable[[], dict[str, Layout]] | None = None,
 ) -> MethodResult:
     """A trial in each layout (``--uv auto``: the mesh's own and the new ones; ``repack``: the
     new ones, aligned and not), then the one whose trial validates best goes on from its best
     candidate with the steps and the time left.
+
+    ``later`` makes more layouts once the trials of ``layouts`` have run (``--uv auto``: the
+    new ones are planned and baked after the own layout's trial): the first step waits on no
+    planning, and a race that ends after that trial (nothing visible left to gain, no step
+    made, stopped) plans nothing (the reason in ``facts.skipped``).
 
     The first trial runs, after what the race pays once (the validation views' caching and
     the baselines' scoring), at most :data:`TRIAL_SHARE` of the time left and that share of
@@ -324,20 +337,26 @@ def raced(
     mesh's own for ``auto``). A trial that stops with nothing visible left to gain
     (:data:`~geoscaler.optim.loop.NOTHING_TO_GAIN`) ends the race with what it ships.
     """
-    if len(layouts) == 1 or config.steps < len(layouts):
+    trials = len(layouts) + (later is not None)  # at least
+    if trials < 2 or config.steps < trials:
         name, layout = next(iter(layouts.items()))
         facts.used = name
         if layout.atlas is not None:
             facts.planned = layout.atlas.facts
+        if later is not None:
+            facts.skipped = "too few steps for a trial in each layout"
         model = start_model(mesh, rule, layout.renderer, layout.starts)
         return layout.fit(mesh, rule, model, config, context, started, facts)
     end = _method_end(config, context, started)
     cameras = sample_training_cameras(config.pool_views, config.seed, config.distances)
     race = _Trials(config, context, started, end, cameras)
-    for name, layout in layouts.items():
-        race.run(mesh, rule, name, layout, start_model(mesh, rule, layout.renderer, layout.starts))
-        if _stopped(context) or race.nothing_to_gain or race.steps_each == 0:
-            break
+    race.run_each(mesh, rule, layouts, start_model)
+    if later is not None:
+        if race.ended:
+            facts.skipped = race.ended
+        else:
+            layouts = {**layouts, **later()}
+            race.run_each(mesh, rule, layouts, start_model)
     winner = _winner(race.results, layouts, facts, race.steps_each, race.starts)
     facts.race.update(race.gated)
     first_step = _first_step(race.results.values())
@@ -393,14 +412,13 @@ def _timely_layouts(
     renderer: Renderer,
     config: OptimizeConfig,
     validation: Validation,
-    started: float,
     end: float | None,
     facts: LayoutFacts,
 ) -> list[Atlas]:
     """The new layouts (:func:`offered_layouts`), planned and baked by :data:`PREPARING_SHARE`
-    of the time from ``started`` to ``end`` (None: no budget). Each bake is priced first
+    of the time from now to ``end`` (None: no budget). Each bake is priced first
     (:func:`bake_seconds`), so each plan's deadline leaves the bakes their time."""
-    planned_by, baking = _planning_deadline(mesh, rule, renderer, validation, started, end)
+    planned_by, baking = _planning_deadline(mesh, rule, renderer, validation, end)
     clock = validation.clock
     return offered_layouts(mesh, rule, renderer, config, facts, clock, planned_by, baking)
 
@@ -454,7 +472,6 @@ def _planning_deadline(
     rule: SizeRule,
     renderer: Renderer,
     validation: Validation,
-    started: float,
     end: float | None,
 ) -> tuple[float | None, float]:
     """``(instant the first plan must be done by, seconds a bake takes)``: the bake priced at
@@ -465,7 +482,8 @@ def _planning_deadline(
         validation.cache_next()  # prices the bake (the loop would cache it first)
     sizes = output_sizes_for(mesh, rule, renderer)
     baking = bake_seconds(sizes, renderer.reference_maps(), renderer, validation.view_cost)
-    return started + PREPARING_SHARE * (end - started) - baking, baking
+    now = validation.clock.now()
+    return now + PREPARING_SHARE * (end - now) - baking, baking
 
 
 def _method_end(config: OptimizeConfig, context: RunContext, started: float) -> float | None:
@@ -497,6 +515,30 @@ class _Trials:
         self.starts: dict[str, dict[str, float]] = {}
         self.gated: dict[str, TrialFacts] = {}
         self.steps = 0
+
+    def run_each(
+        self, mesh: TexturedMesh, rule: SizeRule, layouts: dict[str, Layout], start_model: Any
+    ) -> None:
+        """The trials of the ``layouts`` not yet run, in order, while the race goes on
+        (:attr:`ended`) and the steps asked leave room for one more."""
+        for name, layout in layouts.items():
+            if name in self.results or name in self.gated:
+                continue
+            if self.results and (self.ended or self.steps + self.steps_each > self.config.steps):
+                return
+            model = start_model(mesh, rule, layout.renderer, layout.starts)
+            self.run(mesh, rule, name, layout, model)
+
+    @property
+    def ended(self) -> str | None:
+        """Why no further trial runs (None: the race goes on)."""
+        if _stopped(self.context):
+            return "stopped"
+        if self.nothing_to_gain:
+            return "a filter already validates beyond what is visible"
+        if self.results and self.steps_each == 0:
+            return "the first trial made no step in its share of the time"
+        return None
 
     def run(
         self, mesh: TexturedMesh, rule: SizeRule, name: str, layout: Layout, model: Any
