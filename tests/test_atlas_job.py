@@ -171,6 +171,9 @@ def fake_race(monkeypatch, first_made: int, first_stopped_by: str, steps: int = 
     def fit(self, mesh, rule, layout, model, loop_end, reserve, steps, facts=None, **handover):
         made, stopped_by = (first_made, first_stopped_by) if self.first else (steps, "steps")
         fits.append((layout.name, made))
+        # the trial before the planning caches views in what the planning leaves of the share
+        expected = repacked.FIRST_TRIAL_CACHING if self.first else None
+        assert handover.get("caching_share") == expected
         scores = Scores({"Q": 40.0}, {"Q": np.array([40.0, 41.0, 39.0])})
         loop = LoopFacts(made, 0, scores, True, {}, stopped_by, 0.0, 4, {"Q": 3}, 0)
         return MethodResult([None], loop=loop)
@@ -385,7 +388,8 @@ def test_the_race_reports_one_run_of_steps_and_one_end(cube):
     best = method_details(result)["validation_psnr_fg"]
     found = [e.step for e in events if e.phase == "validation" and e.validation_psnr == best]
     assert method_details(result)["best_step"] == (found[0] if found else 0)
-    assert {event.total_steps for event in events} == {5}
+    # the steps asked, until the loser's trial step is known to come on top
+    assert [e.total_steps for e in events if e.phase == "step"] == [5, 5, 6, 6, 6, 6]
     assert [event.phase for event in events].count("done") == 1
     assert events[-1].phase == "done"
     phases = [event.phase for event in events]

@@ -257,6 +257,24 @@ def test_existing_side_files_of_an_obj_output_are_refused(glb, tmp_path, no_work
     assert (tmp_path / "out.mtl").read_text() == "keep"
 
 
+def test_the_step_bar_follows_the_runs_total_and_never_shows_negative_time_left():
+    from geoscaler.clock import ManualClock
+    from geoscaler.optim.events import ProgressEvent
+
+    clock = ManualClock()
+    progress = DownsampleProgress(enabled=False, clock=clock)
+    progress.on_event(ProgressEvent("step", step=1, total_steps=10, elapsed=0.0))
+    clock.set(4.0)
+    assert progress.time_left(ProgressEvent("step", 5, 10, 4.0)) == pytest.approx(5.0)  # 1 s a step
+    progress.method_started("direct", 4, time_budget=3.0)  # the budget ends first, at 7 s
+    assert progress.time_left(ProgressEvent("step", 5, 10, 4.0)) == pytest.approx(3.0)
+    # A race's continuation counts the losing trial's steps on top: the total grows with them.
+    progress.on_event(ProgressEvent("step", step=12, total_steps=14, elapsed=6.0))
+    assert (progress.bar.n, progress.bar.total) == (12, 14)
+    assert progress.time_left(ProgressEvent("step", 15, 14, 7.0)) == 0.0
+    progress.close()
+
+
 def interrupt_at_step(monkeypatch, step: int, times: int) -> None:
     """Send SIGINT ``times`` times to this process when the loop reports ``step``."""
     real = DownsampleProgress.on_event

@@ -612,9 +612,10 @@ def test_closing_the_caching_caches_no_view_past_the_loops_own_end():
         def __len__(self) -> int:
             return 0
 
-    def closed(loop_end: float) -> list[float]:
+    def closed(loop_end: float, share: float = loop_module.CACHING_SHARE) -> list[float]:
         """When each validation view was cached (one second each) as a loop ending at
-        ``loop_end`` seconds of a 20 s budget closes its caching."""
+        ``loop_end`` seconds of a 20 s budget, caching within ``share`` of it, closes its
+        caching."""
         clock, cached = ManualClock(), []
 
         def cache_next() -> bool:
@@ -627,9 +628,11 @@ def test_closing_the_caching_caches_no_view_past_the_loops_own_end():
         train = SimpleNamespace(views=Pool(), nbytes=0)
         config = OptimizeConfig(time_budget=20.0, view_memory=None)
         budget = Budget(clock, 0.0, 20.0, 20.0 - loop_end)
-        loop_module._Caching(train, validation, config, budget, lambda *a, **k: None).close()
+        quiet = lambda *args, **fields: None  # noqa: E731
+        loop_module._Caching(train, validation, config, budget, quiet, share).close()
         return cached
 
     window = loop_module.CACHING_SHARE * 20.0  # from the budget's start: 8 s
     assert closed(20.0) == [float(s) for s in range(1, int(window) + 1)]
     assert closed(3.0) == [1.0, 2.0, 3.0]  # the last begun before the loop's end
+    assert closed(20.0, share=0.24) == [1.0, 2.0, 3.0, 4.0, 5.0]  # a window of 4.8 s

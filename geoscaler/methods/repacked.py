@@ -37,6 +37,7 @@ from geoscaler.methods.registry import (
 )
 from geoscaler.optim.floor import paired_gap
 from geoscaler.optim.loop import (
+    CACHING_SHARE,
     FINISH_MARGIN,
     NOTHING_TO_GAIN,
     PLAIN,
@@ -78,7 +79,14 @@ PREPARING_SHARE = 0.4
 the own layout's trial) by which the new layouts are planned and baked, the rest left to the
 steps: the packing's search stops there, the cut's plan is not
 made where it would end later (:func:`~geoscaler.uv.atlas.repack`), nor the bake where its
-estimate would (:func:`bake_seconds`: the mesh's own layout goes on)."""
+estimate would (:func:`bake_seconds`: the mesh's own layout goes on). The trial that runs
+before the planning caches its views within the rest of the loop's caching share
+(:data:`FIRST_TRIAL_CACHING`)."""
+FIRST_TRIAL_CACHING = CACHING_SHARE * (1.0 - PREPARING_SHARE)
+"""The caching share of a race's first trial where new layouts are planned after it: the
+planning takes its share out of the time the views are cached in, as it did when it came
+before the first step, so that a short budget's race does not freeze more validation views
+than it can afford (docs/decisions/keep-first-race.md)."""
 
 
 class LayoutValidation(Validation):
@@ -349,7 +357,7 @@ def raced(
         return layout.fit(mesh, rule, model, config, context, started, facts)
     end = _method_end(config, context, started)
     cameras = sample_training_cameras(config.pool_views, config.seed, config.distances)
-    race = _Trials(config, context, started, end, cameras)
+    race = _Trials(config, context, started, end, cameras, planning_follows=later is not None)
     race.run_each(mesh, rule, layouts, start_model)
     if later is not None:
         if race.ended:
@@ -375,7 +383,8 @@ def raced(
     )
     pool = race.pools[winner]
     pool.views.cameras = list(cameras)  # the trial's loop stopped the pool's growth
-    phase = _Phase(config, context, started, race.steps, first=False, last=True)
+    total = replace(config, steps=race.steps + steps_left)  # the losers' trials on top
+    phase = _Phase(total, context, started, race.steps, first=False, last=True)
     scores = best.loop.validation_scores
     result = phase.fit(
         mesh,
@@ -505,9 +514,11 @@ class _Trials:
         started: float,
         end: float | None,
         cameras: list[Camera],
+        planning_follows: bool = False,
     ):
+        """``planning_follows``: more layouts are planned after the first trial."""
         self.config, self.context, self.started, self.end = config, context, started, end
-        self.cameras = cameras
+        self.cameras, self.planning_follows = cameras, planning_follows
         self.steps_each = max(1, round(TRIAL_SHARE * config.steps))
         self.results: dict[str, MethodResult] = {}
         self.models: dict[str, Any] = {}
@@ -563,6 +574,8 @@ class _Trials:
                     return
                 handover["start_scores"] = start
         deadline = self._first_deadline(layout.validation) if first else self.end
+        if first and self.planning_follows:
+            handover["caching_share"] = FIRST_TRIAL_CACHING
         phase = _Phase(self.config, self.context, self.started, self.steps, first, last=False)
         pool = training_views(layout.renderer, self.cameras, layout.validation.sizes, True)
         result = phase.fit(

@@ -315,8 +315,8 @@ class _Caching:
     (none beyond the first, under a budget they would overrun).
     After each step :meth:`after_step` caches :data:`CACHED_PER_STEP` more, training and
     validation views in turn (whichever has fewer) until one is complete, then the other; the
-    validation freezes once complete. Under a budget, once
-    :data:`CACHING_SHARE` of it is spent, or once the cached views hold ``config.view_memory``
+    validation freezes once complete. Under a budget, once its caching share of it is spent
+    (:data:`CACHING_SHARE` unless told), or once the cached views hold ``config.view_memory``
     bytes or the process ``config.memory_limit``, the pool stops growing and the validation
     freezes at what is cached.
     """
@@ -328,12 +328,14 @@ class _Caching:
         config: OptimizeConfig,
         budget: Budget,
         emit: Callable[..., None],
+        share: float = CACHING_SHARE,
     ):
-        """``emit(kind, **fields)`` reports a progress event of the loop."""
+        """``emit(kind, **fields)`` reports a progress event of the loop; views are cached
+        within ``share`` of the budget."""
         self.train, self.validation, self.config = train, validation, config
         self.budget, self.emit = budget, emit
         self.view_cost = ViewCost()
-        share = None if budget.seconds is None else CACHING_SHARE * budget.seconds
+        share = None if budget.seconds is None else share * budget.seconds
         self.window = Budget(budget.clock, budget.start, share)
 
     @property
@@ -470,6 +472,8 @@ class LoopSetup:
             same validation validated it (it is not validated again).
         phase: where the loop stands in a run of several (its events' and ``best_step``'s
             count).
+        caching_share: the share of the budget within which views are cached
+            (:data:`CACHING_SHARE`; less where other preparation shares that time).
     """
 
     keeps_uvs: bool = True
@@ -478,6 +482,7 @@ class LoopSetup:
     pool: ViewCache | None = None
     start_scores: Scores | None = None
     phase: Phase = ALONE
+    caching_share: float = CACHING_SHARE
 
 
 PLAIN = LoopSetup()
@@ -560,7 +565,8 @@ class TrainingLoop:
         self.majorizes = (
             isinstance(model, Sloped) and self.keeps_uvs and pool.with_taps and plain_l2
         )
-        self.caching = _Caching(pool, validation, config, budget, self._report)
+        share = setup.caching_share
+        self.caching = _Caching(pool, validation, config, budget, self._report, share)
         self.start_state: Candidate | None = None
 
     def run(self) -> OptimizeResult:

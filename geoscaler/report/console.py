@@ -95,6 +95,7 @@ class DownsampleProgress(JobObserver):
             self._phase("steps", "optimising", event.total_steps)
             bar.unit = "step"
             self.first_step = (self.clock.now(), event.step)
+        bar.total = event.total_steps  # a layout race's losers' steps come on top
         bar.n = event.step
         postfix = []
         if math.isfinite(event.loss):
@@ -115,7 +116,7 @@ class DownsampleProgress(JobObserver):
         if self.first_step is not None and event.step > self.first_step[1]:
             began, first = self.first_step
             rate = (self.clock.now() - began) / (event.step - first)
-            estimates.append(rate * (event.total_steps - event.step))
+            estimates.append(rate * max(event.total_steps - event.step, 0))
         if self.deadline is not None:
             estimates.append(max(self.deadline - self.clock.now(), 0.0))
         return min(estimates) if estimates else None
