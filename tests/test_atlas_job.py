@@ -158,7 +158,10 @@ def fake_race(monkeypatch, first_made: int, first_stopped_by: str, steps: int = 
     """``--uv auto``'s race with every phase's loop faked: the first trial makes
     ``first_made`` steps and stops for ``first_stopped_by``, later phases make the steps they
     are given. Returns the result, the facts, ``(layout, steps)`` per phase and how many times
-    the new layouts were planned."""
+    the new layouts were planned. ``alive`` records, as the race's last phase starts, the
+    layouts whose training pool is still held."""
+    import gc
+    import weakref
     from types import SimpleNamespace
 
     import geoscaler.methods.repacked as repacked
@@ -166,7 +169,7 @@ def fake_race(monkeypatch, first_made: int, first_stopped_by: str, steps: int = 
     from geoscaler.optim.loop import OptimizeConfig
     from geoscaler.optim.validation import Scores
 
-    fits, planned = [], []
+    fits, planned, pools = [], [], {}
 
     def fit(self, mesh, rule, layout, model, loop_end, reserve, steps, facts=None, **handover):
         made, stopped_by = (first_made, first_stopped_by) if self.first else (steps, "steps")
@@ -174,13 +177,26 @@ def fake_race(monkeypatch, first_made: int, first_stopped_by: str, steps: int = 
         # the trial before the planning caches views in what the planning leaves of the share
         expected = repacked.FIRST_TRIAL_CACHING if self.first else None
         assert handover.get("caching_share") == expected
+        if self.last:
+            gc.collect()
+            alive.extend(name for name, pool in pools.items() if pool() is not None)
         scores = Scores({"Q": 40.0}, {"Q": np.array([40.0, 41.0, 39.0])})
         loop = LoopFacts(made, 0, scores, True, {}, stopped_by, 0.0, 4, {"Q": 3}, 0)
         return MethodResult([None], loop=loop)
 
+    class Pool:
+        views = SimpleNamespace(cameras=[])
+
+    def training_views(renderer, *args):
+        pool = Pool()
+        pools[renderer.layout] = weakref.ref(pool)
+        return pool
+
+    scores = Scores({"Q": 40.0}, {"Q": np.array([40.0, 41.0, 39.0])})
     monkeypatch.setattr(repacked._Phase, "fit", fit)
-    pool = SimpleNamespace(views=SimpleNamespace(cameras=[]))
-    monkeypatch.setattr(repacked, "training_views", lambda *args: pool)
+    monkeypatch.setattr(repacked, "training_views", training_views)
+    monkeypatch.setattr(repacked, "validate", lambda *args: scores)  # a new layout's start
+    monkeypatch.setattr(repacked, "start_below", lambda *args: {})  # ... within the margin
     validation = SimpleNamespace(
         rank=lambda scores: (0.0, scores["Q"]),
         find_taps=lambda: None,
@@ -189,7 +205,7 @@ def fake_race(monkeypatch, first_made: int, first_stopped_by: str, steps: int = 
     )
 
     def layout(name: str) -> SimpleNamespace:
-        cpu = SimpleNamespace(device="cpu")
+        cpu = SimpleNamespace(device="cpu", layout=name)
         return SimpleNamespace(
             name=name, validation=validation, atlas=None, starts=[], renderer=cpu
         )
@@ -198,13 +214,25 @@ def fake_race(monkeypatch, first_made: int, first_stopped_by: str, steps: int = 
         planned.append(True)
         return {"repack": layout("repack")}
 
-    model = SimpleNamespace(restore=lambda textures: None)
+    model = SimpleNamespace(restore=lambda textures: None, candidate=lambda: None)
     facts = LayoutFacts(uv="auto")
     config = OptimizeConfig(steps=steps, pool_views=4)
     own = {"keep": layout("keep")}
     start_model = lambda *args: model  # noqa: E731
     result = repacked.raced(None, None, own, start_model, config, RunContext(), 0.0, facts, later)
     return result, facts, fits, len(planned)
+
+
+alive: list[str] = []
+
+
+def test_the_winner_goes_on_without_the_losers_training_pools(monkeypatch):
+    """The trials fill the method's memory limit between them: the loser's pool (its taps)
+    is dropped before the winner's loop goes on, so that the winner's pool can grow."""
+    alive.clear()
+    result, facts, fits, plans = fake_race(monkeypatch, 2, "steps")
+    assert plans == 1 and fits == [("keep", 2), ("repack", 2), ("keep", 8)]  # a tie: the own
+    assert alive == ["keep"] and result.loop.steps == 12  # the loser's 2 on top
 
 
 def test_a_first_trial_of_no_step_ends_the_race_and_its_layout_goes_on(monkeypatch):

@@ -53,6 +53,7 @@ from geoscaler.optim.validation import (
     sets_below,
     validation_view_sets,
 )
+from geoscaler.process import release_free_memory
 from geoscaler.render.cameras import Camera, sample_training_cameras
 from geoscaler.render.renderer import Renderer
 from geoscaler.render.views import ViewCache, training_views
@@ -369,6 +370,9 @@ def raced(
     facts.race.update(race.gated)
     first_step = _first_step(race.results.values())
     best, layout, model = race.results[winner], layouts[winner], race.models[winner]
+    race.keep_only(winner)
+    layouts = {winner: layout}  # the losers' validation taps go with them
+    release_free_memory()
     best_step = best.loop.best_step
     steps_left = config.steps - best.loop.steps
     finishing = FINISH_MARGIN * layout.validation.seconds_needed(2, False)
@@ -539,6 +543,14 @@ class _Trials:
                 return
             model = start_model(mesh, rule, layout.renderer, layout.starts)
             self.run(mesh, rule, name, layout, model)
+
+    def keep_only(self, winner: str) -> None:
+        """Forget every other layout's model and training pool (their taps). The trials fill
+        the method's memory limit between them, and the winner's pool grows only while the
+        process's resident size (freed memory kept included) stays below it: what the losers
+        held is given back for it (:func:`raced` trims the freed memory)."""
+        self.models = {winner: self.models[winner]}
+        self.pools = {winner: self.pools[winner]}
 
     @property
     def ended(self) -> str | None:
