@@ -375,6 +375,19 @@ def test_views_stop_being_cached_once_the_process_holds_the_memory_limit(scene, 
     assert unknown.training_views == 8
 
 
+def test_the_pool_grows_again_once_the_process_falls_below_the_memory_limit(
+    scene, monkeypatch
+):
+    """A loop that starts at the limit (a race's continuation, its first step's buffers and the
+    trials' leftovers held) freezes its validation at the least, but its training pool grows
+    once a later step leaves room: it no longer trains on its first 4 views for the rest."""
+    readings = iter([2_000_000_000] * 6)
+    monkeypatch.setattr(loop_module, "resident_bytes", lambda: next(readings, 1_000_000_000))
+    run_ = run(scene, uncached_validation(scene), steps=6, memory_limit=1_500_000_000)
+    assert run_.validation_views == {"Q": 3, "near": 2, "far": 2}  # frozen at the limit
+    assert run_.training_views > 4  # 2 more a step once there was room (4: it stayed shut)
+
+
 def test_a_method_limits_its_loops_to_more_memory_than_the_process_holds_as_it_starts(
     monkeypatch,
 ):

@@ -317,8 +317,9 @@ class _Caching:
     validation views in turn (whichever has fewer) until one is complete, then the other; the
     validation freezes once complete. Under a budget, once its caching share of it is spent
     (:data:`CACHING_SHARE` unless told), or once the cached views hold ``config.view_memory``
-    bytes or the process ``config.memory_limit``, the pool stops growing and the validation
-    freezes at what is cached.
+    bytes, the pool stops growing and the validation freezes at what is cached. While the
+    process holds ``config.memory_limit`` the validation freezes and the pool waits for a step
+    that leaves room.
     """
 
     def __init__(
@@ -371,11 +372,15 @@ class _Caching:
         return True
 
     def after_step(self) -> None:
-        """Cache :data:`CACHED_PER_STEP` views; past the caching window or the memory limits,
-        :meth:`close`. Then, where the process holds its memory limit, give its free memory
-        back (:func:`~geoscaler.process.release_free_memory`)."""
-        if self.window.left() < 0 or self.memory_full():
+        """Cache :data:`CACHED_PER_STEP` views; past the caching window or the view memory,
+        :meth:`close`; at the process's memory limit, none this step (the validation sets
+        freeze at what they have; the pool grows again where a later step leaves room). Then,
+        where the process holds its memory limit, give its free memory back
+        (:func:`~geoscaler.process.release_free_memory`)."""
+        if self.window.left() < 0 or self.views_full():
             self.close()
+        elif self.memory_full():
+            self.validation.freeze()
         else:
             for _ in range(CACHED_PER_STEP):
                 if self.memory_full() or not self._cache_one():
@@ -403,11 +408,16 @@ class _Caching:
 
         Read right after a step, the resident size holds that step's passing buffers too
         (freed memory is kept), so a view is cached only where the next step still fits."""
-        views = self.view_bytes()
-        if self.config.view_memory is not None and views >= self.config.view_memory:
+        if self.views_full():
             return True
+        views = self.view_bytes()
         cached = len(self.pool) + self.validation.num_views
         return self._resident_over(views // max(cached, 1))
+
+    def views_full(self) -> bool:
+        """The cached views hold ``config.view_memory`` bytes or more."""
+        limit = self.config.view_memory
+        return limit is not None and self.view_bytes() >= limit
 
     def _resident_over(self, more: int) -> bool:
         """The process's resident size plus ``more`` bytes reaches ``config.memory_limit``
