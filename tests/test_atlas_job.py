@@ -157,9 +157,9 @@ def test_a_new_layout_below_the_own_one_on_any_set_stays_out_of_the_race():
 def fake_race(monkeypatch, first_made: int, first_stopped_by: str, steps: int = 10):
     """``--uv auto``'s race with every phase's loop faked: the first trial makes
     ``first_made`` steps and stops for ``first_stopped_by``, later phases make the steps they
-    are given. Returns the result, the facts, ``(layout, steps)`` per phase and how many times
-    the new layouts were planned. ``alive`` records, as the race's last phase starts, the
-    layouts whose training pool is still held."""
+    are given. Returns the result, the facts, ``(layout, steps)`` per phase, how many times
+    the new layouts were planned, and the layouts whose training pool was still held as the
+    race's last phase started."""
     import gc
     import weakref
     from types import SimpleNamespace
@@ -169,7 +169,8 @@ def fake_race(monkeypatch, first_made: int, first_stopped_by: str, steps: int = 
     from geoscaler.optim.loop import OptimizeConfig
     from geoscaler.optim.validation import Scores
 
-    fits, planned, pools = [], [], {}
+    fits, planned, pools, alive = [], [], {}, []
+    scores = Scores({"Q": 40.0}, {"Q": np.array([40.0, 41.0, 39.0])})  # every trial's, tied
 
     def fit(self, mesh, rule, layout, model, loop_end, reserve, steps, facts=None, **handover):
         made, stopped_by = (first_made, first_stopped_by) if self.first else (steps, "steps")
@@ -180,7 +181,6 @@ def fake_race(monkeypatch, first_made: int, first_stopped_by: str, steps: int = 
         if self.last:
             gc.collect()
             alive.extend(name for name, pool in pools.items() if pool() is not None)
-        scores = Scores({"Q": 40.0}, {"Q": np.array([40.0, 41.0, 39.0])})
         loop = LoopFacts(made, 0, scores, True, {}, stopped_by, 0.0, 4, {"Q": 3}, 0)
         return MethodResult([None], loop=loop)
 
@@ -192,7 +192,6 @@ def fake_race(monkeypatch, first_made: int, first_stopped_by: str, steps: int = 
         pools[renderer.layout] = weakref.ref(pool)
         return pool
 
-    scores = Scores({"Q": 40.0}, {"Q": np.array([40.0, 41.0, 39.0])})
     monkeypatch.setattr(repacked._Phase, "fit", fit)
     monkeypatch.setattr(repacked, "training_views", training_views)
     monkeypatch.setattr(repacked, "validate", lambda *args: scores)  # a new layout's start
@@ -220,23 +219,19 @@ def fake_race(monkeypatch, first_made: int, first_stopped_by: str, steps: int = 
     own = {"keep": layout("keep")}
     start_model = lambda *args: model  # noqa: E731
     result = repacked.raced(None, None, own, start_model, config, RunContext(), 0.0, facts, later)
-    return result, facts, fits, len(planned)
-
-
-alive: list[str] = []
+    return result, facts, fits, len(planned), alive
 
 
 def test_the_winner_goes_on_without_the_losers_training_pools(monkeypatch):
     """The trials fill the method's memory limit between them: the loser's pool (its taps)
     is dropped before the winner's loop goes on, so that the winner's pool can grow."""
-    alive.clear()
-    result, facts, fits, plans = fake_race(monkeypatch, 2, "steps")
+    result, facts, fits, plans, alive = fake_race(monkeypatch, 2, "steps")
     assert plans == 1 and fits == [("keep", 2), ("repack", 2), ("keep", 8)]  # a tie: the own
     assert alive == ["keep"] and result.loop.steps == 12  # the loser's 2 on top
 
 
 def test_a_first_trial_of_no_step_ends_the_race_and_its_layout_goes_on(monkeypatch):
-    result, facts, fits, plans = fake_race(monkeypatch, 0, "time budget")
+    result, facts, fits, plans, _ = fake_race(monkeypatch, 0, "time budget")
     assert fits == [("keep", 0), ("keep", 10)]  # no trial of the new layout; the own goes on
     assert list(facts.race) == ["keep"] and facts.used == "keep"
     assert result.loop.steps == 10
@@ -248,7 +243,7 @@ def test_a_first_trial_with_nothing_visible_to_gain_ships_before_any_layout_is_p
 ):
     from geoscaler.optim.loop import NOTHING_TO_GAIN
 
-    result, facts, fits, plans = fake_race(monkeypatch, 2, NOTHING_TO_GAIN)
+    result, facts, fits, plans, _ = fake_race(monkeypatch, 2, NOTHING_TO_GAIN)
     assert fits == [("keep", 2)] and result.loop.steps == 2  # it ships what the trial found
     assert plans == 0 and "beyond what is visible" in facts.skipped
     assert facts.used == "keep"
