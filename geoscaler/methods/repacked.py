@@ -601,7 +601,7 @@ class _Trials:
     def _first_deadline(self, validation: Validation) -> float | None:
         """When the first trial ends (None: no budget): after what the race pays once, whatever
         the layouts, :data:`TRIAL_SHARE` of the time left after it, but never less than the
-        trial's own least (its first step's training views and the two validations every
+        trial's own least (the training views of one full step and the two validations every
         loop owes, priced as the loop prices them). Paid once: the validation views still to
         cache before they freeze and the baselines' scoring
         (:meth:`~geoscaler.optim.validation.Validation.seconds_needed`, with the loop's

@@ -13,11 +13,11 @@ step count, a wall-clock budget or a plateau, and reports progress events that t
 progress bar and the desktop app consume.
 
 Views are cached while the loop trains: the first step waits for ``views_per_step`` training
-views only; the rest of the training pool and the validation views are cached between steps,
-:data:`CACHED_PER_STEP` after each step until they are all there. Under a budget the
-pool stops growing and the validation sets freeze once :data:`CACHING_SHARE` of it is spent,
-and the loop stops early enough for what must follow: the validations still owed and the
-caller's own scoring and export (``reserve``).
+views only (one under a time budget); the rest of the training pool and the validation views
+are cached between steps, :data:`CACHED_PER_STEP` after each step until they are all there.
+Under a budget the pool stops growing and the validation sets freeze once
+:data:`CACHING_SHARE` of it is spent, and the loop stops early enough for what must follow:
+the validations still owed and the caller's own scoring and export (``reserve``).
 
 Gutters are filled from the UV layout alone (:func:`geoscaler.uv.uvmaps.reachable_texels`), so
 what ships never depends on which views the machine managed to cache.
@@ -312,7 +312,7 @@ class _Caching:
     """Caches the training pool and the validation views between steps.
 
     Before the first step :meth:`until_trainable` caches ``views_per_step`` training views
-    (none beyond the first, under a budget they would overrun).
+    (one under a budget).
     After each step :meth:`after_step` caches :data:`CACHED_PER_STEP` more, training and
     validation views in turn (whichever has fewer) until one is complete, then the other; the
     validation freezes once complete. Under a budget, once its caching share of it is spent
@@ -361,8 +361,14 @@ class _Caching:
     def until_trainable(self, fits: Callable[[float], bool]) -> bool:
         """Cache the training views the first step needs while ``fits(seconds)`` says that
         caching the rest of them (at the mean price of those cached so far) still fits the budget;
-        False when they cannot all be cached in time."""
-        needed = min(self.config.views_per_step, len(self.pool.cameras))
+        False when they cannot all be cached in time.
+
+        Under a budget the first step needs one view: a step on one view moves the texels that
+        view sees, and the views the later steps draw from are cached between steps, so the
+        seconds of caching ``views_per_step`` views up front would be steps not taken. Without
+        a budget, where a run is a step count, the first step sees as many views as the rest."""
+        wanted = 1 if self.budget.limited else self.config.views_per_step
+        needed = min(wanted, len(self.pool.cameras))
         while len(self.pool) < needed:
             if not fits(self.view_cost.mean * (needed - len(self.pool))):
                 return False
