@@ -576,8 +576,8 @@ def test_a_first_step_that_cannot_fit_in_the_budget_is_not_started(scene, monkey
 def test_one_slow_view_does_not_price_every_view_still_to_cache(scene, monkeypatch):
     # 3 views at 0.05 s and one at 0.6 s, cached by the end of step 2; 7 views still to cache
     # after the loop. Priced at the costliest (7 * 0.6 * FINISH_MARGIN = 6.3 s) they would
-    # overrun the 3.25 s left of a 4 s budget and stop the loop there; at the mean (0.19 s a
-    # view: 2 s) they fit, and every step is taken.
+    # overrun the 3.25 s left of a 4 s budget and stop the loop there; at the mean (at most
+    # 0.19 s a view: 2 s) they fit, and every step is taken.
     mesh, _, views = scene
     clock = ManualClock()
     slow = slow_caching(scene, monkeypatch, [0.05, 0.05, 0.05, 0.6], clock)
