@@ -359,9 +359,9 @@ class _Caching:
         return self.validation.cache_next() or self._cache_pool_view()
 
     def until_trainable(self, fits: Callable[[float], bool]) -> bool:
-        """Cache the training views the first step needs while ``fits(seconds)`` says that
-        caching the rest of them (at the mean price of those cached so far) still fits the budget;
-        False when they cannot all be cached in time.
+        """Cache the training views the first step needs, where ``fits(0.0)`` says that what
+        must follow the loop still fits the budget (no view is cached for a step that cannot
+        be taken); False where it does not.
 
         Under a budget the first step needs one view: a step on one view moves the texels that
         view sees, and the views the later steps draw from are cached between steps, so the
@@ -369,11 +369,11 @@ class _Caching:
         a budget, where a run is a step count, the first step sees as many views as the rest."""
         wanted = 1 if self.budget.limited else self.config.views_per_step
         needed = min(wanted, len(self.pool.cameras))
-        while len(self.pool) < needed:
-            if not fits(self.view_cost.mean * (needed - len(self.pool))):
-                return False
-            if not self._cache_pool_view():
-                break
+        if len(self.pool) >= needed:
+            return True
+        if not fits(0.0):
+            return False
+        while len(self.pool) < needed and self._cache_pool_view():
             self.emit("caching", done=len(self.pool), total=needed)
         return True
 
@@ -590,7 +590,7 @@ class TrainingLoop:
         self.renderer.reference_textures()  # made once, before views are timed: not a view's cost
         trainable = self.caching.until_trainable(self.fits)
         self.start_state = _detached(self.model)
-        if not trainable:  # not even the first step's views could be cached in time
+        if not trainable:  # what must follow the loop leaves no time for a first view
             self.state.stopped_by = "time budget"
         self.loop_start = self.budget.now()
         while trainable and self.state.step < self.config.steps:
