@@ -20,6 +20,8 @@ from geoscaler.render.texture import (
     MipTexture,
     TapMatrix,
     UVFootprint,
+    _merged_rows_by_sorting,
+    _merged_rows_on_cpu,
     build_mip_chain,
     fill_gutters,
     mip_sizes,
@@ -297,6 +299,20 @@ def test_merged_taps_sum_each_rows_taps_of_one_texel():
     assert merged.matrix.crow_indices().tolist() == [0, 2, 2, 3]
     table = torch.tensor([[1.0, 10.0], [2.0, 20.0], [4.0, 40.0], [8.0, 80.0]])
     assert torch.equal(merged(table), TapMatrix.by_rows(counts, texel, weight, (3, 4))(table))
+
+
+def test_merging_row_by_row_on_the_cpu_gives_what_sorting_every_tap_gives():
+    generator = torch.Generator().manual_seed(0)
+    counts = torch.randint(0, 40, (500,), generator=generator)
+    texel = torch.randint(0, 64, (int(counts.sum()),), dtype=torch.int32, generator=generator)
+    weight = torch.rand(len(texel), generator=generator)
+    kept = (texel.clone(), weight.clone())
+    by_row = _merged_rows_on_cpu(counts, texel, weight, (500, 64))
+    by_sorting = _merged_rows_by_sorting(counts, texel, weight, (500, 64))
+    assert torch.equal(by_row[0], by_sorting[0])
+    assert torch.equal(by_row[1], by_sorting[1])
+    torch.testing.assert_close(by_row[2], by_sorting[2], rtol=1e-6, atol=1e-6)
+    assert torch.equal(texel, kept[0]) and torch.equal(weight, kept[1])  # inputs untouched
 
 
 def test_a_tap_matrix_is_differentiable_in_its_table():
