@@ -444,6 +444,20 @@ def test_a_loop_whose_baseline_is_visibly_off_makes_its_steps(scene):
     assert max(validation.worst_baseline_views().values()) < 50.0
 
 
+def test_a_frozen_validation_reads_the_worst_baseline_view_from_the_floors_scores(scene):
+    mesh, _, _ = scene
+    baseline = lanczos(reference_textures(mesh)[0], SCALE)
+    validation = fresh_validation(scene, {"lanczos": [baseline]})
+    before_freezing = validation.worst_baseline_views()  # rendered anew, view by view
+    validation.freeze()
+    floor = validation.baseline_scores()["lanczos"]
+    lowest = min(float(np.nanmin(values)) for values in floor.per_view.values())
+    for cache in validation.sets.values():
+        cache.score = None  # rendering the baseline again would call it
+    assert validation.worst_baseline_views() == {"lanczos": lowest}
+    assert before_freezing["lanczos"] == pytest.approx(lowest, abs=1e-4)
+
+
 def test_a_spent_budget_validates_on_what_is_cached_and_ships_the_start(scene):
     mesh, renderer, _ = scene
     validation = uncached_validation(scene)

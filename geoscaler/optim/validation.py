@@ -379,9 +379,15 @@ class Validation:
     def worst_baseline_views(self, least: Mapping[str, int] = MIN_FROZEN) -> dict[str, float]:
         """Baseline name -> its lowest PSNR-fg (dB) over the views cached (once frozen: validated
         on) in every set, views with nothing in view aside; empty until each set has its
-        ``least`` views (fewer where it has fewer) or without baselines."""
+        ``least`` views (fewer where it has fewer) or without baselines. Once frozen, read
+        from :meth:`baseline_scores` (the floor needs them anyway: nothing rendered twice)."""
         if not self.frozen and self.views.to_cache(least):
             return {}
+        if self.frozen:
+            return {
+                name: min(_finite_min(values) for values in scores.per_view.values())
+                for name, scores in self.baseline_scores().items()
+            }
         worst = {}
         for name, textures in self.baselines.items():
             colours = [None if t is None else to_rgb(t) for t in textures]
@@ -413,6 +419,12 @@ class Validation:
         """The order candidates are chosen in: the smallest :meth:`shortfall`, then the best
         PSNR-fg on Q. A candidate that clears the floor outranks every one that does not."""
         return self.shortfall(scores), scores["Q"]
+
+
+def _finite_min(values: np.ndarray) -> float:
+    """The lowest of ``values`` that is not nan (views with nothing in view); inf: none."""
+    values = values[~np.isnan(values)]
+    return float(values.min()) if len(values) else math.inf
 
 
 def _codes(textures: Sequence[torch.Tensor | None]) -> list[np.ndarray | None]:
