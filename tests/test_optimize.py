@@ -16,6 +16,7 @@ from geoscaler.methods.direct import TexelModel
 from geoscaler.methods.learned import loop_config
 from geoscaler.optim.events import Controller
 from geoscaler.optim.loop import (
+    CACHING_PER_STEPPING,
     FINISH_MARGIN,
     METHOD_MEMORY,
     NOTHING_TO_GAIN,
@@ -545,6 +546,18 @@ def slow_caching(
     return slow
 
 
+def slow_steps(monkeypatch, seconds: float, clock: ManualClock) -> None:
+    """Every training step takes ``seconds`` on ``clock`` (plain and majorized alike)."""
+    for name in ("train_step", "majorized_step"):
+        step = getattr(loop_module, name)
+
+        def slow_step(*args, step=step, **kwargs):
+            clock.advance(seconds)
+            return step(*args, **kwargs)
+
+        monkeypatch.setattr(loop_module, name, slow_step)
+
+
 def run_on(clock: ManualClock, renderer, validation, time_budget: float):
     """The loop of the scene's Lanczos start under ``time_budget`` seconds of ``clock``."""
     model, config = lanczos_model(renderer.mesh), small_config(time_budget=time_budget)
@@ -588,16 +601,34 @@ def test_a_first_step_that_cannot_fit_in_the_budget_is_not_started(scene, monkey
 
 
 def test_one_slow_view_does_not_price_every_view_still_to_cache(scene, monkeypatch):
-    # 3 views at 0.05 s and one at 0.6 s, cached by the end of step 2; 7 views still to cache
-    # after the loop. Priced at the costliest (7 * 0.6 * FINISH_MARGIN = 6.3 s) they would
-    # overrun the 3.25 s left of a 4 s budget and stop the loop there; at the mean (at most
-    # 0.19 s a view: 2 s) they fit, and every step is taken.
+    # Steps of 0.03 s; 3 views at 0.05 s and one at 0.6 s, cached by the end of step 4; 7
+    # views still to cache after the loop. Priced at the costliest (7 * 0.6 * FINISH_MARGIN =
+    # 6.3 s) they would overrun the 3.2 s left of a 4 s budget and stop the loop there; at the
+    # mean (at most 0.19 s a view: 2 s) they fit, and every step is taken.
     mesh, _, views = scene
     clock = ManualClock()
     slow = slow_caching(scene, monkeypatch, [0.05, 0.05, 0.05, 0.6], clock)
+    slow_steps(monkeypatch, 0.03, clock)
     validation = _CostingViews(views, output_sizes(mesh, SCALE), count=7, clock=clock)
     result = run_on(clock, slow, validation, time_budget=4.0)
     assert result.training_views >= 4 and result.steps == small_config().steps
+
+
+def test_under_a_budget_caching_between_steps_takes_no_more_time_than_the_steps(
+    scene, monkeypatch
+):
+    # A view takes 0.25 s, a step 0.0625 s, the validation views are cached already: after
+    # step k a view is cached where the 0.25 s of each of the n cached so far fit in k steps'
+    # time (0.25 n <= 0.0625 k): after steps 1, 4, 8, ..., 28, one view each. Without the
+    # balance, two views after every step: the 16 of the pool by step 8.
+    mesh, _, views = scene
+    clock = ManualClock()
+    slow = slow_caching(scene, monkeypatch, 0.25, clock)
+    slow_steps(monkeypatch, 0.0625, clock)
+    validation = _Costing(views, output_sizes(mesh, SCALE), seconds=0.0, clock=clock)
+    result = run_on(clock, slow, validation, time_budget=10.0)
+    assert CACHING_PER_STEPPING == 1.0
+    assert result.steps == 30 and result.training_views == 1 + 8
 
 
 def test_restoring_texels_gives_back_the_candidate_they_came_from(scene):

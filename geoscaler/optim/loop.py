@@ -88,6 +88,11 @@ docs/refusals.md, memory)."""
 CACHED_PER_STEP = 2
 """Views cached after each step while some are missing: a count, not a time share, so that a
 run without a budget is the same on every machine."""
+CACHING_PER_STEPPING = 1.0
+"""Under a time budget, the seconds the loop may spend caching views between steps per second
+its steps took: a view costs as much as 3 to 10 steps on the CPU, so two views after every step
+left a short budget a handful of steps (bob at 15 s: 2). The first step's view and the
+validation views a validation needs (cached when it is due) are not held back by it."""
 
 
 class Model(Protocol):
@@ -338,6 +343,8 @@ class _Caching:
         self.view_cost = ViewCost()
         share = None if budget.seconds is None else share * budget.seconds
         self.window = Budget(budget.clock, budget.start, share)
+        self.stepping = 0.0  # seconds the loop's steps took
+        self.between_steps = 0.0  # seconds spent caching after them
 
     @property
     def pool(self) -> ViewSet:
@@ -377,24 +384,38 @@ class _Caching:
             self.emit("caching", done=len(self.pool), total=needed)
         return True
 
-    def after_step(self) -> None:
-        """Cache :data:`CACHED_PER_STEP` views; past the caching window or the view memory,
-        :meth:`close`; at the process's memory limit, none this step (the validation sets
-        freeze at what they have; the pool grows again where a later step leaves room). Then,
-        where the process holds its memory limit, give its free memory back
+    def after_step(self, step_seconds: float) -> None:
+        """After a step of ``step_seconds``, cache :data:`CACHED_PER_STEP` views (under a
+        budget, fewer where caching would take more than :data:`CACHING_PER_STEPPING` of the
+        steps' seconds so far); past the caching window or the view memory, :meth:`close`; at
+        the process's memory limit, none this step (the validation sets freeze at what they
+        have; the pool grows again where a later step leaves room). Then, where the process
+        holds its memory limit, give its free memory back
         (:func:`~geoscaler.process.release_free_memory`)."""
+        self.stepping += step_seconds
         if self.window.left() < 0 or self.views_full():
             self.close()
         elif self.memory_full():
             self.validation.freeze()
         else:
             for _ in range(CACHED_PER_STEP):
-                if self.memory_full() or not self._cache_one():
+                if self.memory_full() or not self._caching_pays():
+                    break
+                started = self.budget.now()
+                cached = self._cache_one()
+                self.between_steps += self.budget.now() - started
+                if not cached:
                     break
             if self.validation.complete:
                 self.validation.freeze()
         if self._resident_over(0):
             release_free_memory()
+
+    def _caching_pays(self) -> bool:
+        """Another view may be cached between steps: always without a budget (a count), under
+        one while caching has taken at most :data:`CACHING_PER_STEPPING` of the steps' time."""
+        limited = self.budget.limited
+        return not limited or self.between_steps <= CACHING_PER_STEPPING * self.stepping
 
     def close(self) -> None:
         """No more training views; cache the validation views left within the caching window,
@@ -597,7 +618,7 @@ class TrainingLoop:
             if not self._may_step():
                 break
             self._step()
-            self.caching.after_step()
+            self.caching.after_step(self.state.step_seconds)
             if self._nothing_to_gain():
                 self.state.stopped_by = NOTHING_TO_GAIN
                 break
