@@ -289,30 +289,31 @@ def test_a_tap_matrix_sums_each_rows_weighted_texels_given_in_any_order():
 
 
 def test_merged_taps_sum_each_rows_taps_of_one_texel():
-    # Row 0 reads texel 3 twice and texel 1 once, row 1 nothing, row 2 texel 2 twice.
-    counts = torch.tensor([3, 0, 2])
-    texel = torch.tensor([3, 1, 3, 2, 2], dtype=torch.int32)
-    weight = torch.tensor([0.5, 0.25, 0.25, 1.0, 0.5])
-    merged = TapMatrix.merged(counts, texel, weight, (3, 4))
+    # Row 0 reads texel 3 twice and texel 1 once, row 1 nothing, row 2 texel 2 twice; the taps
+    # come in any row order.
+    row = torch.tensor([0, 2, 0, 2, 0], dtype=torch.int32)
+    texel = torch.tensor([3, 2, 1, 2, 3], dtype=torch.int32)
+    weight = torch.tensor([0.5, 1.0, 0.25, 0.5, 0.25])
+    merged = TapMatrix.merged(row, texel, weight, (3, 4))
     assert merged.texel.tolist() == [1, 3, 2]  # ascending within each row
     assert merged.weight.tolist() == [0.25, 0.75, 1.5]
     assert merged.matrix.crow_indices().tolist() == [0, 2, 2, 3]
     table = torch.tensor([[1.0, 10.0], [2.0, 20.0], [4.0, 40.0], [8.0, 80.0]])
-    assert torch.equal(merged(table), TapMatrix.by_rows(counts, texel, weight, (3, 4))(table))
+    assert torch.equal(merged(table), TapMatrix(row, texel, weight, (3, 4))(table))
 
 
 def test_merging_row_by_row_on_the_cpu_gives_what_sorting_every_tap_gives():
     generator = torch.Generator().manual_seed(0)
-    counts = torch.randint(0, 40, (500,), generator=generator)
-    texel = torch.randint(0, 64, (int(counts.sum()),), dtype=torch.int32, generator=generator)
-    weight = torch.rand(len(texel), generator=generator)
-    kept = (texel.clone(), weight.clone())
-    by_row = _merged_rows_on_cpu(counts, texel, weight, (500, 64))
-    by_sorting = _merged_rows_by_sorting(counts, texel, weight, (500, 64))
+    row = torch.randint(0, 500, (20_000,), dtype=torch.int32, generator=generator)
+    texel = torch.randint(0, 64, (20_000,), dtype=torch.int32, generator=generator)
+    weight = torch.rand(20_000, generator=generator)
+    kept = (row.clone(), texel.clone(), weight.clone())
+    by_row = _merged_rows_on_cpu(row, texel, weight, (500, 64))
+    by_sorting = _merged_rows_by_sorting(row, texel, weight, (500, 64))
     assert torch.equal(by_row[0], by_sorting[0])
     assert torch.equal(by_row[1], by_sorting[1])
     torch.testing.assert_close(by_row[2], by_sorting[2], rtol=1e-6, atol=1e-6)
-    assert torch.equal(texel, kept[0]) and torch.equal(weight, kept[1])  # inputs untouched
+    assert all(torch.equal(a, b) for a, b in zip((row, texel, weight), kept, strict=True))
 
 
 def test_a_tap_matrix_is_differentiable_in_its_table():

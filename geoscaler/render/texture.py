@@ -279,17 +279,18 @@ class TapMatrix:
 
     @classmethod
     def merged(
-        cls, counts: torch.Tensor, texel: torch.Tensor, weight: torch.Tensor, shape: tuple[int, int]
+        cls, row: torch.Tensor, texel: torch.Tensor, weight: torch.Tensor, shape: tuple[int, int]
     ) -> TapMatrix:
-        """:meth:`by_rows` with each row's taps of one texel summed into one tap, the row's
-        texels ascending: the samples of a pixel read many of the same texels (of its coarser
-        mip level above all), so the matrix holds fewer taps and a product with it costs
-        less. Equal to the unmerged matrix up to float rounding. On the CPU each row is sorted
-        on its own (scipy's ``sum_duplicates``: a row holds a few dozen taps), about ten times
-        faster than sorting every tap of the view at once, as the GPU does."""
+        """A matrix of ``(M,)`` taps given by ``row``, in any order, each row's taps of one
+        texel summed into one tap, the row's texels ascending: the samples of a pixel read
+        many of the same texels (of its coarser mip level above all), so the matrix holds
+        fewer taps and a product with it costs less. Equal to :class:`TapMatrix` of the same
+        taps up to float rounding. On the CPU the taps are counted into their rows and each
+        row is sorted on its own (scipy: a row holds a few dozen taps), about ten times faster
+        than sorting every tap of the view at once, as the GPU does."""
         on_cpu = texel.device.type == "cpu"
         merge = _merged_rows_on_cpu if on_cpu else _merged_rows_by_sorting
-        return cls.by_rows(*merge(counts, texel, weight, shape), shape)
+        return cls.by_rows(*merge(row, texel, weight, shape), shape)
 
     @property
     def texel(self) -> torch.Tensor:
@@ -350,31 +351,29 @@ def _csr(
 
 
 def _merged_rows_by_sorting(
-    counts: torch.Tensor, texel: torch.Tensor, weight: torch.Tensor, shape: tuple[int, int]
+    row: torch.Tensor, texel: torch.Tensor, weight: torch.Tensor, shape: tuple[int, int]
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``(counts, texel, weight)`` of :meth:`TapMatrix.merged` on any device: every tap of the
-    matrix sorted at once by its (row, texel) key."""
-    rows = torch.arange(len(counts), device=texel.device)
-    key = torch.repeat_interleave(rows, counts) * shape[1] + texel.long()
+    """``(counts, texel, weight)`` in row order of :meth:`TapMatrix.merged` on any device:
+    every tap sorted at once by its (row, texel) key."""
+    key = row.long() * shape[1] + texel.long()
     unique, inverse = torch.unique(key, sorted=True, return_inverse=True)
     summed = weight.new_zeros(len(unique)).index_add_(0, inverse, weight)
-    row = unique // shape[1]
-    return torch.bincount(row, minlength=shape[0]), (unique - row * shape[1]).int(), summed
+    merged_row = unique // shape[1]
+    counts = torch.bincount(merged_row, minlength=shape[0])
+    return counts, (unique - merged_row * shape[1]).int(), summed
 
 
 def _merged_rows_on_cpu(
-    counts: torch.Tensor, texel: torch.Tensor, weight: torch.Tensor, shape: tuple[int, int]
+    row: torch.Tensor, texel: torch.Tensor, weight: torch.Tensor, shape: tuple[int, int]
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``(counts, texel, weight)`` of :meth:`TapMatrix.merged` on the CPU: each row's texels
-    sorted and its taps of one texel summed, row by row (the inputs are left as they are)."""
-    offsets = np.zeros(len(counts) + 1, dtype=np.int64)
-    np.cumsum(counts.numpy(), out=offsets[1:])
-    matrix = scipy.sparse.csr_matrix(
-        (weight.numpy(), texel.numpy(), offsets), shape=shape, copy=True
-    )
-    matrix.sum_duplicates()  # sorts each row's texels, then sums its repeated ones
-    merged_counts = torch.from_numpy(np.diff(matrix.indptr))
-    return merged_counts, torch.from_numpy(matrix.indices).int(), torch.from_numpy(matrix.data)
+    """``(counts, texel, weight)`` in row order of :meth:`TapMatrix.merged` on the CPU: the
+    taps counted into their rows, then each row's texels sorted and its taps of one texel
+    summed, row by row (the inputs are left as they are)."""
+    taps = (weight.numpy(), (row.numpy(), texel.numpy()))
+    matrix = scipy.sparse.csr_matrix(taps, shape=shape)  # a copy: duplicates summed
+    matrix.sum_duplicates()  # sorted texels in each row (already done where scipy did it)
+    counts = torch.from_numpy(np.diff(matrix.indptr).astype(np.int64))
+    return counts, torch.from_numpy(matrix.indices).int(), torch.from_numpy(matrix.data)
 
 
 def _csr_by_rows(

@@ -233,26 +233,23 @@ class ViewCache:
             ]
         footprint = self.renderer.footprint(gbuffer)
         row_of_sample = row_of_pixel.index_select(0, self.renderer.pixel_of_sample(gbuffer))
-        by_row = torch.argsort(row_of_sample, stable=True)  # so the taps come in row order
-        per_material = [by_row]
+        per_material: list[torch.Tensor | None] = [None]  # None: every sample
         if len(self.layouts) > 1:
-            tri_ids = gbuffer.tri_ids.index_select(0, by_row)
-            material = self.renderer.face_material.index_select(0, tri_ids)
-            per_material = [by_row[material == index] for index in range(len(self.layouts))]
+            material = self.renderer.face_material.index_select(0, gbuffer.tri_ids)
+            materials = range(len(self.layouts))
+            per_material = [torch.nonzero(material == i).squeeze(1) for i in materials]
         share = 1.0 / self.renderer.supersample**2
         taps: list[TapMatrix | None] = []
         for layout, samples in zip(self.layouts, per_material, strict=True):
-            if layout is None or len(samples) == 0:
+            if layout is None or (samples is not None and len(samples) == 0):
                 taps.append(None)
                 continue
-            count, texel, weight = layout.taps(
-                UVFootprint(*(t.index_select(0, samples) for t in footprint))
-            )
-            row = row_of_sample.index_select(0, samples)
-            per_row = torch.zeros(rows, dtype=torch.int64, device=row.device)
-            per_row.index_add_(0, row, count.long())
+            seen = footprint if samples is None else (t.index_select(0, samples) for t in footprint)
+            count, texel, weight = layout.taps(UVFootprint(*seen))
+            row = row_of_sample if samples is None else row_of_sample.index_select(0, samples)
+            row_of_tap = torch.repeat_interleave(row, count)
             shape = (rows, layout.num_texels)
-            taps.append(TapMatrix.merged(per_row, texel, weight * share, shape))
+            taps.append(TapMatrix.merged(row_of_tap, texel, weight * share, shape))
         return taps
 
     def _untextured(self, gbuffer: GBuffer | SoftFragments) -> torch.Tensor:
