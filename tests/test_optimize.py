@@ -631,6 +631,29 @@ def test_under_a_budget_caching_between_steps_takes_no_more_time_than_the_steps(
     assert result.steps == 30 and result.training_views == 1 + 8
 
 
+def test_under_a_budget_the_validation_views_any_validation_needs_are_not_held_back(
+    scene, monkeypatch
+):
+    # Every view takes 0.25 s, a step 0.0625 s. The validation's least views (Q 3, near 2, far
+    # 2) come 2 after each step whatever the steps took: 1, 3, 5, 7 views cached as steps 1-4
+    # end; held back like the pool's, only 1 more after step 1 (0.25 s > 0.0625 s).
+    mesh, _, views = scene
+    clock = ManualClock()
+    slow = slow_caching(scene, monkeypatch, 0.25, clock)
+    slow_steps(monkeypatch, 0.0625, clock)
+    uncached = {name: ViewSet(slow, v.cameras, eager=False) for name, v in views.items()}
+    validation = Validation(uncached, output_sizes(mesh, SCALE), clock=clock)
+    cached_at_step = {}
+
+    def on_event(event):
+        if event.phase == "step":
+            cached_at_step[event.step] = event.done
+
+    model, config = lanczos_model(mesh), small_config(time_budget=20.0, steps=6)
+    optimize(slow, model, config, validation, budget=Budget(clock, 0.0, 20.0), on_event=on_event)
+    assert [cached_at_step[step] for step in (1, 2, 3, 4)] == [1, 3, 5, 7]
+
+
 def test_restoring_texels_gives_back_the_candidate_they_came_from(scene):
     mesh, _, _ = scene
     model = lanczos_model(mesh)

@@ -92,7 +92,8 @@ CACHING_PER_STEPPING = 1.0
 """Under a time budget, the seconds the loop may spend caching views between steps per second
 its steps took: a view costs as much as 3 to 10 steps on the CPU, so two views after every step
 left a short budget a handful of steps (bob at 15 s: 2). The first step's view and the
-validation views a validation needs (cached when it is due) are not held back by it."""
+validation views that any validation needs (:data:`~geoscaler.optim.validation.MIN_FROZEN`)
+are not held back by it, nor counted."""
 
 
 class Model(Protocol):
@@ -386,12 +387,12 @@ class _Caching:
 
     def after_step(self, step_seconds: float) -> None:
         """After a step of ``step_seconds``, cache :data:`CACHED_PER_STEP` views (under a
-        budget, fewer where caching would take more than :data:`CACHING_PER_STEPPING` of the
-        steps' seconds so far); past the caching window or the view memory, :meth:`close`; at
-        the process's memory limit, none this step (the validation sets freeze at what they
-        have; the pool grows again where a later step leaves room). Then, where the process
-        holds its memory limit, give its free memory back
-        (:func:`~geoscaler.process.release_free_memory`)."""
+        budget, beyond the validation views owed in any case, fewer where caching would take
+        more than :data:`CACHING_PER_STEPPING` of the steps' seconds so far); past the
+        caching window or the view memory, :meth:`close`; at the process's memory limit, none
+        this step (the validation sets freeze at what they have; the pool grows again where a
+        later step leaves room). Then, where the process holds its memory limit, give its
+        free memory back (:func:`~geoscaler.process.release_free_memory`)."""
         self.stepping += step_seconds
         if self.window.left() < 0 or self.views_full():
             self.close()
@@ -399,7 +400,12 @@ class _Caching:
             self.validation.freeze()
         else:
             for _ in range(CACHED_PER_STEP):
-                if self.memory_full() or not self._caching_pays():
+                if self.memory_full():
+                    break
+                if self.budget.limited and self.validation.lacks_least:
+                    self.validation.cache_next()  # owed in any case: not held back
+                    continue
+                if not self._caching_pays():
                     break
                 started = self.budget.now()
                 cached = self._cache_one()

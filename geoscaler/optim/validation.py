@@ -201,6 +201,12 @@ class Validation:
             self.costs.measure(cache, self.sizes, self.clock)
         return True
 
+    @property
+    def lacks_least(self) -> bool:
+        """Not frozen, and some set still lacks the views any validation needs
+        (:data:`MIN_FROZEN`, which :meth:`freeze` would cache first)."""
+        return not self.frozen and self.views.to_cache() > 0
+
     def cache_all(self) -> None:
         """Cache every view of every set (nothing once frozen)."""
         while self.cache_next():
