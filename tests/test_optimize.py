@@ -558,6 +558,15 @@ def slow_steps(monkeypatch, seconds: float, clock: ManualClock) -> None:
         monkeypatch.setattr(loop_module, name, slow_step)
 
 
+def slow_run(
+    scene, monkeypatch, clock: ManualClock, view_seconds: float, step_seconds: float
+) -> Renderer:
+    """The scene's renderer on ``clock``: caching a view takes ``view_seconds``, a step
+    ``step_seconds`` (:func:`slow_caching`, :func:`slow_steps`)."""
+    slow_steps(monkeypatch, step_seconds, clock)
+    return slow_caching(scene, monkeypatch, view_seconds, clock)
+
+
 def run_on(clock: ManualClock, renderer, validation, time_budget: float):
     """The loop of the scene's Lanczos start under ``time_budget`` seconds of ``clock``."""
     model, config = lanczos_model(renderer.mesh), small_config(time_budget=time_budget)
@@ -624,8 +633,7 @@ def test_under_a_budget_caching_between_steps_takes_no_more_time_than_the_steps(
     # Without the balance, two views after every step: the 16 of the pool by step 8.
     mesh, _, views = scene
     clock = ManualClock()
-    slow = slow_caching(scene, monkeypatch, 0.25, clock)
-    slow_steps(monkeypatch, 0.0625, clock)
+    slow = slow_run(scene, monkeypatch, clock, view_seconds=0.25, step_seconds=0.0625)
     validation = _Costing(views, output_sizes(mesh, SCALE), seconds=0.0, clock=clock)
     result = run_on(clock, slow, validation, time_budget=20.0)  # a window of 8 s: never shut
     assert CACHING_PER_STEPPING == 1.0
@@ -642,8 +650,7 @@ def test_under_a_budget_the_validation_views_any_validation_needs_are_not_held_b
     # (one view after step 1, the next once the steps have taken its 0.25 s, after step 4).
     mesh, _, views = scene
     clock = ManualClock()
-    slow = slow_caching(scene, monkeypatch, 0.25, clock)
-    slow_steps(monkeypatch, 0.0625, clock)
+    slow = slow_run(scene, monkeypatch, clock, view_seconds=0.25, step_seconds=0.0625)
     uncached = {name: ViewSet(slow, v.cameras, eager=False) for name, v in views.items()}
     validation = Validation(uncached, output_sizes(mesh, SCALE), clock=clock)
     cached_at_step = {}
