@@ -241,7 +241,8 @@ class ViewCache:
         share = 1.0 / self.renderer.supersample**2
         taps: list[TapMatrix | None] = []
         for layout, samples in zip(self.layouts, per_material, strict=True):
-            if layout is None or (samples is not None and len(samples) == 0):
+            seen_samples = len(row_of_sample) if samples is None else len(samples)
+            if layout is None or seen_samples == 0:
                 taps.append(None)
                 continue
             seen = footprint if samples is None else (t.index_select(0, samples) for t in footprint)
