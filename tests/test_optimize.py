@@ -640,7 +640,7 @@ def test_under_a_budget_caching_between_steps_takes_no_more_time_than_the_steps(
     assert result.steps == 30 and result.training_views == 1 + 2 + 8
 
 
-def test_under_a_budget_the_validation_views_any_validation_needs_are_not_held_back(
+def test_under_a_budget_the_views_owed_in_any_case_are_not_held_back(
     scene, monkeypatch
 ):
     # Every view takes 0.25 s, a step 0.0625 s. The views owed in any case, the pool's first 4

@@ -425,12 +425,13 @@ class _Caching:
     def _cache_owed(self) -> bool:
         """Cache one view owed in any case, False where none is: the pool's first
         ``views_per_step`` views or the validation's least (:attr:`Validation.lacks_least`),
-        whichever has fewer cached where both are owed."""
-        owed = [cache for cache, owes in ((self._cache_pool_view, self._pool_owes()),
-                (self.validation.cache_next, self.validation.lacks_least)) if owes]  # fmt: skip
-        if len(owed) == 2 and len(self.pool) > self.validation.num_views:
-            owed.reverse()
-        return bool(owed) and owed[0]()
+        in :meth:`_cache_one`'s turn where both are owed."""
+        pool_owes, validation_owes = self._pool_owes(), self.validation.lacks_least
+        if pool_owes and validation_owes:
+            return self._cache_one()
+        if pool_owes:
+            return self._cache_pool_view()
+        return validation_owes and self.validation.cache_next()
 
     def _caching_pays(self) -> bool:
         """Another view may be cached between steps: always without a budget (a count), under
