@@ -341,7 +341,7 @@ def test_an_aligned_layout_sparser_than_the_own_one_is_not_weighed(monkeypatch):
         """The layouts offered where the aligned plan has density ``aligned_k`` (the unaligned
         one 1.4), and the facts."""
 
-        def plan(mesh, rule, renderer, config, budget, align):
+        def plan(mesh, rule, renderer, config, budget, align, views):
             k = aligned_k if align else 1.4
             return SimpleNamespace(moved=True, aligned=align, facts=SimpleNamespace(k=k))
 
@@ -393,6 +393,29 @@ def test_repack_races_its_aligned_and_unaligned_layouts():
     assert method_details(result)["layout"]["alignment_texels"] == (
         16 if method_details(result)["layout_used"] == "repack" else 1
     )
+
+
+def test_the_aligned_and_unaligned_plans_render_the_training_views_once(monkeypatch):
+    from geoscaler.methods.registry import LayoutFacts
+    from geoscaler.methods.repacked import offered_layouts
+    from geoscaler.optim.loop import OptimizeConfig
+    from geoscaler.render.renderer import Renderer
+    from geoscaler.resize.sizes import SizeRule
+
+    cube = cube_mesh(texture_size=1024)  # its charts are aligned (minifying)
+    renderer = Renderer(cube, "cpu", Evaluation.quick((0, 20, 40), image_size=64))
+    rendered = []
+    rasterize = renderer.rasterize
+
+    def counted(camera, *args, **kwargs):
+        rendered.append(camera)
+        return rasterize(camera, *args, **kwargs)
+
+    monkeypatch.setattr(renderer, "rasterize", counted)
+    config = OptimizeConfig(pool_views=8)
+    offered = offered_layouts(cube, SizeRule(scale=4), renderer, config, LayoutFacts(uv="auto"))
+    assert [atlas.aligned for atlas in offered] == [True, False]
+    assert len(rendered) == 8
 
 
 def test_fewer_steps_than_layouts_run_the_first_layout_alone(cube):

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -141,6 +142,27 @@ class LayoutValidation(Validation):
         return seconds + missing * (self.base.view_cost or view_seconds)
 
 
+class PlanningViews:
+    """What every training camera sees, as a plan reads it: per camera the face of each pixel,
+    one sample per pixel. Rendered on first use and shared by the plans made from it (the
+    aligned and the unaligned layout see the same views: rendering them again cost a
+    second plan as much as the first, 1.2 s of a 15 s run on spot).
+
+    Every camera of the training pool, not a few: charts that few views see are starved
+    otherwise (``benchmarks/repack.py --methods bake``; see
+    docs/decisions/repack-planning-cameras.md)."""
+
+    def __init__(self, renderer: Renderer, config: Any):
+        self.renderer, self.config = renderer, config
+
+    @cached_property
+    def tri_ids(self) -> list[torch.Tensor]:
+        """Per camera the ``(H, W)`` int tensor of faces (-1: background)."""
+        config, renderer = self.config, self.renderer
+        cameras = sample_training_cameras(config.pool_views, config.seed, config.distances)
+        return [renderer.rasterize(camera, renderer.image_size).tri_ids for camera in cameras]
+
+
 def plan_layout(
     mesh: TexturedMesh,
     rule: SizeRule,
@@ -148,23 +170,19 @@ def plan_layout(
     config: Any,
     budget: Budget | None = None,
     align: bool = True,
+    views: PlanningViews | None = None,
 ) -> Atlas:
     """The new layout for ``rule``'s sizes within ``budget`` (:func:`~geoscaler.uv.atlas.repack`;
-    None: no limit), its chart scales from the faces every
-    training camera sees, one sample per pixel; ``align``: False never aligns charts.
-
-    Every camera of the training pool, not a few: charts that few views see are starved
-    otherwise (``benchmarks/repack.py --methods bake``; see
-    docs/decisions/repack-planning-cameras.md)."""
-    cameras = sample_training_cameras(config.pool_views, config.seed, config.distances)
+    None: no limit), its chart scales from the faces every training camera sees
+    (``views``; None: rendered here); ``align``: False never aligns charts."""
+    views = views or PlanningViews(renderer, config)
     sizes = output_sizes_for(mesh, rule, renderer)
     references = renderer.reference_maps()
     detail = [
         None if s is None or r is None else r.shape[0] / s[0]
         for s, r in zip(sizes, references, strict=True)
     ]
-    tri_ids = [renderer.rasterize(camera, renderer.image_size).tri_ids for camera in cameras]
-    return repack(mesh, sizes, tri_ids, renderer.resolution, detail, budget, align)
+    return repack(mesh, sizes, views.tri_ids, renderer.resolution, detail, budget, align)
 
 
 def baked_maps(
@@ -459,12 +477,13 @@ def offered_layouts(
             each later one by ``baking`` seconds (a bake's estimate) earlier.
     """
     atlases: list[Atlas] = []
+    views = PlanningViews(renderer, config)
     for align in (True, False):
         deadline = None if planned_by is None else planned_by - len(atlases) * baking
         if deadline is not None and clock.now() >= deadline:
             break
         budget = None if deadline is None else unlimited(clock).until(deadline)
-        atlas = plan_layout(mesh, rule, renderer, config, budget, align)
+        atlas = plan_layout(mesh, rule, renderer, config, budget, align, views)
         if align or not atlases:
             facts.planned = atlas.facts
         if not atlas.moved:
