@@ -154,12 +154,22 @@ def test_a_new_layout_below_the_own_one_on_any_set_stays_out_of_the_race():
     assert _winner(trials, layouts, facts, 5) == "repack"
 
 
-def fake_race(monkeypatch, first_made: int, first_stopped_by: str, steps: int = 10):
+def fake_race(
+    monkeypatch,
+    first_made: int,
+    first_stopped_by: str,
+    steps: int = 10,
+    context: RunContext | None = None,
+    winner: str | None = None,
+    ends: list | None = None,
+):
     """``--uv auto``'s race with every phase's loop faked: the first trial makes
     ``first_made`` steps and stops for ``first_stopped_by``, later phases make the steps they
-    are given. Returns the result, the facts, ``(layout, steps)`` per phase, how many times
-    the new layouts were planned, and the layouts whose training pool was still held as the
-    race's last phase started."""
+    are given; every layout validates alike, or ``winner``'s better. Returns the result, the
+    facts, ``(layout, steps)`` per phase, how many times the new layouts were planned, and the
+    layouts whose training pool was still held as the race's last phase started; ``ends``
+    receives ``(layout, loop end, reserve)`` per phase. The race runs in ``context`` (default:
+    no budget); the new layout has an atlas."""
     import gc
     import weakref
     from types import SimpleNamespace
@@ -171,17 +181,21 @@ def fake_race(monkeypatch, first_made: int, first_stopped_by: str, steps: int = 
 
     fits, planned, pools, alive = [], [], {}, []
     scores = Scores({"Q": 40.0}, {"Q": np.array([40.0, 41.0, 39.0])})  # every trial's, tied
+    better = Scores({"Q": 41.0}, {"Q": np.array([41.0, 42.0, 40.0])})
+    ends = [] if ends is None else ends
 
     def fit(self, mesh, rule, layout, model, loop_end, reserve, steps, facts=None, **handover):
         made, stopped_by = (first_made, first_stopped_by) if self.first else (steps, "steps")
         fits.append((layout.name, made))
+        ends.append((layout.name, loop_end, reserve))
         # the trial before the planning caches views in what the planning leaves of the share
         expected = repacked.FIRST_TRIAL_CACHING if self.first else None
         assert handover.get("caching_share") == expected
         if self.last:
             gc.collect()
             alive.extend(name for name, pool in pools.items() if pool() is not None)
-        loop = LoopFacts(made, 0, scores, True, {}, stopped_by, 0.0, 4, {"Q": 3}, 0)
+        validated = better if layout.name == winner else scores
+        loop = LoopFacts(made, 0, validated, True, {}, stopped_by, 0.0, 4, {"Q": 3}, 0)
         return MethodResult([None], loop=loop)
 
     class Pool:
@@ -201,12 +215,14 @@ def fake_race(monkeypatch, first_made: int, first_stopped_by: str, steps: int = 
         find_taps=lambda: None,
         sizes=[(64, 64)],
         seconds_needed=lambda *args: 0.0,
+        view_cost=0.0,
     )
 
     def layout(name: str) -> SimpleNamespace:
         cpu = SimpleNamespace(device="cpu", layout=name)
+        atlas = None if name == "keep" else SimpleNamespace(facts=None)
         return SimpleNamespace(
-            name=name, validation=validation, atlas=None, starts=[], renderer=cpu
+            name=name, validation=validation, atlas=atlas, starts=[], renderer=cpu
         )
 
     def later() -> dict:
@@ -215,11 +231,29 @@ def fake_race(monkeypatch, first_made: int, first_stopped_by: str, steps: int = 
 
     model = SimpleNamespace(restore=lambda textures: None, candidate=lambda: None)
     facts = LayoutFacts(uv="auto")
-    config = OptimizeConfig(steps=steps, pool_views=4)
+    context = context or RunContext()
+    config = OptimizeConfig(steps=steps, pool_views=4, time_budget=context.time_budget)
     own = {"keep": layout("keep")}
     start_model = lambda *args: model  # noqa: E731
-    result = repacked.raced(None, None, own, start_model, config, RunContext(), 0.0, facts, later)
+    result = repacked.raced(None, None, own, start_model, config, context, 0.0, facts, later)
     return result, facts, fits, len(planned), alive
+
+
+@pytest.mark.parametrize("winner", ["keep", "repack"])
+def test_a_new_layout_ends_its_trial_and_loop_before_the_rebake_of_the_other_maps(
+    monkeypatch, winner
+):
+    """The export re-bakes a new layout's other maps: a new layout's trial and loop end that
+    long before the method's end; the own layout's keep it for steps."""
+    from geoscaler.clock import ManualClock
+
+    context = RunContext(time_budget=100.0, reserve=1.0, clock=ManualClock(), relayout_reserve=3.0)
+    ends = []
+    fake_race(monkeypatch, 2, "steps", context=context, winner=winner, ends=ends)
+    first, trial, last = ends
+    assert first[0] == "keep" and first[1] < 96.0  # the first trial's share, as before
+    assert trial == ("repack", 96.0, 0.0)  # 100 s less the export's 1, less the re-bake's 3
+    assert last == ((winner, 96.0, 4.0) if winner == "repack" else ("keep", 99.0, 1.0))
 
 
 def test_the_winner_goes_on_without_the_losers_training_pools(monkeypatch):

@@ -144,12 +144,12 @@ def test_the_report_says_what_shipped(tmp_path, capsys):
 
 @pytest.fixture
 def budget_spy():
-    """A learned method (bicubic's texture) that records the budget and reserve the job hands
-    it."""
-    budgets: list[tuple[float | None, float]] = []
+    """A learned method (bicubic's texture) that records the budget, reserve and re-bake's
+    reserve the job hands it."""
+    budgets: list[tuple[float | None, float, float]] = []
 
     def learned(mesh, scale, options, context):
-        budgets.append((context.time_budget, context.reserve))
+        budgets.append((context.time_budget, context.reserve, context.relayout_reserve))
         return get_method("bicubic").run(mesh, scale, options, context)
 
     registry.register("budget-spy", learned, learned=True)
@@ -161,16 +161,17 @@ def budget_spy():
 def test_a_whole_job_budget_leaves_the_method_only_what_is_left(budget_spy, already_spent):
     """Under a job's budget the time is the job's wall clock: the method gets the budget less
     everything spent since the job began (here 20 s or 25 s before the comparison, as a slow
-    load would), and the reserve for what comes after the job to keep."""
+    load would), the reserve for what comes after the job to keep, and the seconds a new
+    layout's re-bake would add to it."""
     mesh = demo_mesh(subdivisions=4, texture_size=64)
     options = MethodOptions(device="cpu", time_budget=30.0)
     renderer = Renderer(mesh, "cpu", Evaluation.quick((0,), image_size=64))
     clock = ManualClock(100.0)  # stands still: the job's own work takes no time
     compare_on_validation(
         mesh, 4, ["budget-spy", "lanczos"], options=options, renderer=renderer,
-        budget=JobBudget(100.0 - already_spent, reserve=2.0), clock=clock,
+        budget=JobBudget(100.0 - already_spent, reserve=2.0, relayout=3.0), clock=clock,
     )  # fmt: skip
-    assert budget_spy == [(30.0 - already_spent, 2.0)]
+    assert budget_spy == [(30.0 - already_spent, 2.0, 3.0)]
 
 
 def test_a_learned_method_the_budget_cannot_hold_is_not_run_and_lanczos_ships(budget_spy, capsys):

@@ -9,13 +9,26 @@ import pytest
 from mesh_support import mesh_of
 
 from geoscaler.errors import GeoscalerError
+from geoscaler.io.images import (
+    ENCODING_SECONDS_PER_TEXEL,
+    LARGE_ENCODING_SECONDS_PER_TEXEL,
+    encoding_seconds,
+)
 from geoscaler.mesh import Material, SourceImage, TexturedMesh
 from geoscaler.methods import MethodOptions, RunContext, run_method
-from geoscaler.pipeline.shipping import TOKSVIG, ship_asset, toksvig_maps
+from geoscaler.pipeline.shipping import (
+    RESIZE_SECONDS_PER_TEXEL,
+    TOKSVIG,
+    export_seconds,
+    relayout_seconds,
+    ship_asset,
+    toksvig_maps,
+)
 from geoscaler.protocol import Evaluation
 from geoscaler.render.renderer import Renderer
 from geoscaler.resize.maps import METHOD_NAMES
 from geoscaler.resize.sizes import SizePlan, SizeRule, size_plan
+from geoscaler.uv.bake import BAKE_SECONDS_PER_SAMPLE
 
 RNG = np.random.default_rng(7)
 
@@ -183,3 +196,37 @@ def test_toksvig_leaves_roughness_alone_where_the_normal_map_is_kept_or_the_layo
     mesh.materials[0].properties["normalTexture"] = {"texCoord": 1}  # another UV set
     _, shipped = ship_asset(mesh, plan, [made, made], "direct")
     assert shipped[2].method == METHOD_NAMES["data"]
+
+
+def test_the_export_is_priced_by_the_texels_it_encodes_and_the_maps_it_resizes():
+    mesh = shared_pbr_mesh()  # base colour 64, normal 32, metallic-roughness 64 a side
+    plan = size_plan({"all": 4, "normal": 2}, {})  # each ships at 16 a side
+    encoded = 3 * 16 * 16 * ENCODING_SECONDS_PER_TEXEL
+    resized = (32 * 32 + 64 * 64) * RESIZE_SECONDS_PER_TEXEL  # not the base colour: the method's
+    assert export_seconds(mesh, plan, None) == pytest.approx(encoded + resized)
+
+
+def test_a_map_shipped_as_it_came_costs_the_export_nothing_unless_it_changes_format():
+    mesh = shared_pbr_mesh()
+    keep_normals = SizePlan(SizeRule(scale=4), SizeRule(max_size=4096), SizeRule(scale=4))
+    base_and_data = 2 * 16 * 16 * ENCODING_SECONDS_PER_TEXEL + 64 * 64 * RESIZE_SECONDS_PER_TEXEL
+    assert export_seconds(mesh, keep_normals, None) == pytest.approx(base_and_data)
+    assert export_seconds(mesh, keep_normals, "png") == pytest.approx(base_and_data)
+    normal_as_jpeg = 32 * 32 * ENCODING_SECONDS_PER_TEXEL  # a PNG source written as JPEG
+    assert export_seconds(mesh, keep_normals, "jpeg") == pytest.approx(
+        base_and_data + normal_as_jpeg
+    )
+
+
+def test_large_images_are_priced_at_the_encoders_rate_without_png_optimize():
+    assert encoding_seconds(1024, 1024) == 1024 * 1024 * ENCODING_SECONDS_PER_TEXEL
+    assert encoding_seconds(1024, 1025) == 1024 * 1025 * LARGE_ENCODING_SECONDS_PER_TEXEL
+
+
+def test_a_new_layouts_rebake_is_priced_by_the_samples_of_every_other_map():
+    """The normal map (32 -> 16) is baked at 2 samples a side, the metallic-roughness map
+    (64 -> 16) at 4; the base colour is the method's own."""
+    mesh = shared_pbr_mesh()
+    samples = (16 * 2) ** 2 + (16 * 4) ** 2
+    plan = size_plan({"all": 4, "normal": 2}, {})
+    assert relayout_seconds(mesh, plan) == pytest.approx(samples * BAKE_SECONDS_PER_SAMPLE)

@@ -70,6 +70,8 @@ class RunContext:
             spent before it (None: no limit).
         reserve: seconds of ``time_budget`` the job needs after the method (its export).
         clock: where the method reads the time (its budget, its costs).
+        relayout_reserve: seconds the job needs after the method on top of ``reserve`` where
+            the result ships a new UV layout (its export re-bakes the other maps into it).
     """
 
     renderer: Renderer | None = None
@@ -79,6 +81,7 @@ class RunContext:
     time_budget: float | None = None
     reserve: float = 0.0
     clock: Clock = WALL_CLOCK
+    relayout_reserve: float = 0.0
 
 
 @dataclass

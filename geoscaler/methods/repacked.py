@@ -295,10 +295,11 @@ def repacked_direct(
         validation = Validation(validation_view_sets(renderer), sizes, clock=context.clock)
     facts = LayoutFacts(uv=mode)
     end = _method_end(config, context, started)
+    new_end = None if end is None else end - context.relayout_reserve
     own = Layout(renderer.relaid(mesh.uvs, memo), validation)
 
     def planned() -> dict[str, Layout]:
-        atlases = _timely_layouts(mesh, rule, renderer, config, validation, end, facts)
+        atlases = _timely_layouts(mesh, rule, renderer, config, validation, new_end, facts)
         return {
             name: _new_layout(mesh, atlas, renderer, validation, sizes, memo)
             for name, atlas in zip(NEW_LAYOUTS, atlases, strict=False)
@@ -363,6 +364,8 @@ def raced(
     or fewer steps than layouts (no room for a trial in each): the first goes on alone (the
     mesh's own for ``auto``). A trial that stops with nothing visible left to gain
     (:data:`~geoscaler.optim.loop.NOTHING_TO_GAIN`) ends the race with what it ships.
+    A new layout's trial and loop end :attr:`RunContext.relayout_reserve` seconds before the
+    method's end: its export re-bakes the other maps.
     """
     trials = len(layouts) + (later is not None)  # at least
     if trials < 2 or config.steps < trials:
@@ -373,6 +376,7 @@ def raced(
         if later is not None:
             facts.skipped = "too few steps for a trial in each layout"
         model = start_model(mesh, rule, layout.renderer, layout.starts)
+        context = replace(context, reserve=context.reserve + _relayout_reserve(layout, context))
         return layout.fit(mesh, rule, model, config, context, started, facts)
     end = _method_end(config, context, started)
     cameras = sample_training_cameras(config.pool_views, config.seed, config.distances)
@@ -393,6 +397,8 @@ def raced(
     release_free_memory()
     best_step = best.loop.best_step
     steps_left = config.steps - best.loop.steps
+    relayout = _relayout_reserve(layout, context)
+    end = None if end is None else end - relayout
     finishing = FINISH_MARGIN * layout.validation.seconds_needed(2, False)
     no_time = end is not None and context.clock.now() + finishing >= end
     if _stopped(context) or steps_left < 1 or no_time or race.nothing_to_gain:
@@ -414,7 +420,7 @@ def raced(
         layout,
         model,
         end,
-        context.reserve,
+        context.reserve + relayout,
         steps_left,
         facts,
         pool=pool,
@@ -518,6 +524,12 @@ def _planning_deadline(
     return now + PREPARING_SHARE * (end - now) - baking, baking
 
 
+def _relayout_reserve(layout: Layout, context: RunContext) -> float:
+    """Seconds the job's export needs after the method on top of its reserve where ``layout``
+    ships: a new layout's re-bake of the other maps (:attr:`RunContext.relayout_reserve`)."""
+    return 0.0 if layout.atlas is None else context.relayout_reserve
+
+
 def _method_end(config: OptimizeConfig, context: RunContext, started: float) -> float | None:
     """When the method must be done (an instant on ``context.clock``; None: no budget): its budget
     from ``started``, less the job's ``reserve`` after it."""
@@ -605,6 +617,8 @@ class _Trials:
                     return
                 handover["start_scores"] = start
         deadline = self._first_deadline(layout.validation) if first else self.end
+        if deadline is not None:  # a new layout's re-bake of the other maps follows
+            deadline = min(deadline, self.end - _relayout_reserve(layout, self.context))
         if first and self.planning_follows:
             handover["caching_share"] = FIRST_TRIAL_CACHING
         phase = _Phase(self.config, self.context, self.started, self.steps, first, last=False)

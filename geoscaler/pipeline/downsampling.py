@@ -37,6 +37,8 @@ from geoscaler.pipeline.job import (
 from geoscaler.pipeline.shipping import (
     ShippedMap,
     asset_of,
+    export_seconds,
+    relayout_seconds,
     with_lossless_formats,
 )
 from geoscaler.protocol import Evaluation
@@ -45,9 +47,23 @@ from geoscaler.render.renderer import Renderer
 from geoscaler.resize.sizes import SizePlan, check_scale, size_plan
 
 OUTPUT_SUFFIXES = (".glb", ".gltf", ".obj")
-EXPORT_RESERVE = 2.0
-"""Seconds a downsampling job keeps for writing its files and report after scoring (on the
-2-core machine a 2048 x 2048 scan texture encodes to PNG in 0.4 s, a 4096 x 4096 one in 1.3 s)."""
+EXPORT_MARGIN = 2.0
+"""How many times its priced seconds (:func:`~geoscaler.pipeline.shipping.export_seconds`,
+:func:`~geoscaler.pipeline.shipping.relayout_seconds`) a job keeps for its export: the rates
+are the 2-core AMD dev machine's, and the 2-core Intel one rendered and encoded at about
+half its speed."""
+EXPORT_LEAST = 0.3
+"""Seconds a job keeps for its export whatever it writes: the files' writes and renames,
+the report (the export of a 256 x 256 base colour alone took 0.02 s)."""
+
+
+def export_reserve(job: Job) -> JobBudget:
+    """The job's budget with the seconds its export is priced at kept back after the method
+    (:data:`EXPORT_LEAST`, then :data:`EXPORT_MARGIN` times the price), and those a new UV
+    layout's re-bake of the other maps would add, kept back only by a method that ships one."""
+    writing = export_seconds(job.mesh, job.plan, job.image_format)
+    relayout = EXPORT_MARGIN * relayout_seconds(job.mesh, job.plan)
+    return JobBudget(job.started_at, EXPORT_LEAST + EXPORT_MARGIN * writing, relayout)
 
 
 @dataclass
@@ -215,7 +231,7 @@ def run_job(
     and the files written (the report is written by the caller, which knows the seconds).
 
     The time budget is the wall clock of the whole job, from :func:`prepare` to the export
-    (:data:`EXPORT_RESERVE` seconds are kept for writing the files).
+    (the seconds the export is priced at are kept for it, :func:`export_reserve`).
     """
     renderer = renderer or Renderer(job.mesh, job.options.device, product_evaluation(Evaluation()))
     done = downsample(
@@ -226,7 +242,7 @@ def run_job(
         renderer,
         observer,
         controller,
-        JobBudget(job.started_at, EXPORT_RESERVE),
+        export_reserve(job),
         job.clock,
         job.protocol,
         job.plan,

@@ -164,10 +164,13 @@ class JobBudget:
     Attributes:
         started_at: the instant on the job's clock ``options.time_budget`` counts from.
         reserve: seconds the caller needs after the job's methods and rows (the export).
+        relayout: seconds the export needs on top of ``reserve`` where a method's result
+            ships a new UV layout (the other maps re-baked into it).
     """
 
     started_at: float
     reserve: float = 0.0
+    relayout: float = 0.0
 
 
 class _MethodRuns:
@@ -266,8 +269,11 @@ class _MethodRuns:
             after = validation.seconds_needed(0, caching=False)  # the stage's budget keeps it
             lit_seconds = lit_share(seconds, price + after)
         reserve_after = reserve + lit_seconds  # the lit stage's time follows the method
+        # A new layout is not trained lit: its re-bake takes the lit stage's time first.
+        relayout = 0.0 if budget is None else max(budget.relayout - lit_seconds, 0.0)
         context = RunContext(self.renderer, validation, self.controller,
-                             self.observer.on_event, seconds, reserve_after, clock)  # fmt: skip
+                             self.observer.on_event, seconds, reserve_after, clock,
+                             relayout)  # fmt: skip
         method_start = clock.now()
         result = _run(self.mesh, rule, name, self.options, context, seconds, self.observer)
         if budget is not None and result.loop is not None:

@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from PIL import Image
 
+from geoscaler.io.images import IMAGE_FORMATS, encoding_seconds
 from geoscaler.io.slots import slot_info
 from geoscaler.mesh import Material, SourceImage, TexturedMesh
 from geoscaler.methods import MethodResult
@@ -31,7 +32,7 @@ from geoscaler.resize.maps import (
 )
 from geoscaler.resize.sizes import COLOR, SizePlan
 from geoscaler.uv.atlas import Atlas
-from geoscaler.uv.bake import ChartMaps, bake
+from geoscaler.uv.bake import BAKE_SECONDS_PER_SAMPLE, ChartMaps, bake
 
 BASE_COLOR = "baseColorTexture"
 LOSSLESS = "image/png"
@@ -134,11 +135,64 @@ def relayout_maps(
                 if id(pixels) in made or slot_info(material.properties, slot).get("texCoord", 0):
                     continue
                 kind = texture_class(slot)
-                side = plan.rule(kind).size(*pixels.shape[:2])[0]
-                oversample = int(np.clip(pixels.shape[0] // side, 1, 4))
+                side, oversample = _relayout_grid(pixels, kind, plan)
                 baked, _ = bake(pixels, kind, layout, side, oversample)
                 made[id(pixels)] = baked, f"re-baked into the new UV layout ({kind})"
     return made
+
+
+def _relayout_grid(pixels: np.ndarray, kind: str, plan: SizePlan) -> tuple[int, int]:
+    """``(texels per side, samples per texel side)`` of the map ``pixels`` re-baked into a
+    new layout at its class's size."""
+    side = plan.rule(kind).size(*pixels.shape[:2])[0]
+    return side, int(np.clip(pixels.shape[0] // side, 1, 4))
+
+
+RESIZE_SECONDS_PER_TEXEL = 0.06e-6
+"""An upper bound on the seconds :func:`ship_asset` takes to resize a normal or data map, per
+texel of the original, its roughness widened by Toksvig included: 0.04 to 0.05 microseconds on the
+2-core AMD dev machine (normal and metallic-roughness maps of 1024 and 4096 a side)."""
+
+
+def export_seconds(mesh: TexturedMesh, plan: SizePlan, image_format: str | None) -> float:
+    """An upper bound on the seconds :func:`ship_asset` and the encoding of every image take
+    for ``mesh`` on the machine the rates were measured on
+    (:func:`~geoscaler.io.images.encoding_seconds`, :data:`RESIZE_SECONDS_PER_TEXEL`): every
+    image encoded at its class's size, every smaller map other than a base colour resized
+    from its original. A map kept at its size in its own format ships its input's bytes:
+    nothing to encode."""
+    seconds = 0.0
+    for pixels, places in mesh.images():
+        material, slot = places[0]
+        kind = COLOR if slot == BASE_COLOR else texture_class(slot)
+        size = plan.rule(kind).size(*pixels.shape[:2])
+        source = mesh.materials[material].sources.get(slot)
+        as_it_came = image_format is None or (
+            source is not None and IMAGE_FORMATS[image_format] == source.mime
+        )
+        if size == pixels.shape[:2] and slot != BASE_COLOR and as_it_came:
+            continue
+        seconds += encoding_seconds(*size)
+        if slot != BASE_COLOR and size != pixels.shape[:2]:
+            seconds += pixels.shape[0] * pixels.shape[1] * RESIZE_SECONDS_PER_TEXEL
+    return seconds
+
+
+def relayout_seconds(mesh: TexturedMesh, plan: SizePlan) -> float:
+    """An upper bound on :func:`relayout_maps`'s seconds should every material with a base
+    colour move to a new layout: every other map it reads on its first UV set baked at its
+    class's size (:data:`~geoscaler.uv.bake.BAKE_SECONDS_PER_SAMPLE`)."""
+    samples, seen = 0, set()
+    for material in mesh.materials:
+        if material.base_color_texture is None:
+            continue
+        for slot, pixels in material.maps.items():
+            if id(pixels) in seen or slot_info(material.properties, slot).get("texCoord", 0):
+                continue
+            seen.add(id(pixels))
+            side, oversample = _relayout_grid(pixels, texture_class(slot), plan)
+            samples += (side * oversample) ** 2
+    return samples * BAKE_SECONDS_PER_SAMPLE
 
 
 def ship_asset(
