@@ -452,6 +452,52 @@ def test_the_aligned_and_unaligned_plans_render_the_training_views_once(monkeypa
     assert len(rendered) == 8
 
 
+def slow_planning_views(seconds_a_view: float):
+    """:class:`PlanningViews` of 8 cameras whose each view takes ``seconds_a_view`` on a manual
+    clock, and that clock."""
+    from types import SimpleNamespace
+
+    from geoscaler.clock import ManualClock
+    from geoscaler.methods.repacked import PlanningViews
+    from geoscaler.optim.loop import OptimizeConfig
+
+    clock = ManualClock()
+
+    def rasterize(camera, size):
+        clock.advance(seconds_a_view)
+        return SimpleNamespace(tri_ids=torch.zeros((size, size), dtype=torch.long))
+
+    renderer = SimpleNamespace(rasterize=rasterize, image_size=4)
+    return PlanningViews(renderer, OptimizeConfig(pool_views=8)), clock
+
+
+def test_a_plans_views_take_at_most_half_the_time_to_its_deadline():
+    views, clock = slow_planning_views(0.125)  # 8 views: 1 s
+    assert views.render_by(deadline=2.0, clock=clock)  # half the time to it: rendered
+    assert len(views.tri_ids) == 8 and clock.now() == 1.0
+    views, clock = slow_planning_views(0.125)
+    assert not views.render_by(deadline=1.75, clock=clock)  # the first view: 1 s > 0.875
+    assert clock.now() == 0.125 and len(views._tri_ids) == 1
+
+
+def test_no_layout_is_planned_where_its_views_would_leave_the_packing_too_little_time(
+    monkeypatch,
+):
+    import geoscaler.methods.repacked as repacked
+    from geoscaler.methods.registry import LayoutFacts
+    from geoscaler.methods.repacked import offered_layouts
+    from geoscaler.optim.loop import OptimizeConfig
+    from geoscaler.resize.sizes import SizeRule
+
+    views, clock = slow_planning_views(0.125)
+    monkeypatch.setattr(repacked, "PlanningViews", lambda renderer, config: views)
+    monkeypatch.setattr(repacked, "plan_layout", lambda *args: pytest.fail("planned"))
+    facts = LayoutFacts(uv="auto")
+    config = OptimizeConfig(pool_views=8)
+    assert offered_layouts(None, SizeRule(scale=4), None, config, facts, clock, 1.75) == []
+    assert "no time to plan" in facts.skipped and clock.now() == 0.125
+
+
 def test_fewer_steps_than_layouts_run_the_first_layout_alone(cube):
     result = raced(cube, steps=1)
     assert method_details(result)["steps"] == 1 and "race" not in method_details(result)

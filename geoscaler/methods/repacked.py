@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
-from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -142,11 +141,17 @@ class LayoutValidation(Validation):
         return seconds + missing * (self.base.view_cost or view_seconds)
 
 
+PLANNING_VIEWS_SHARE = 0.5
+"""Under a time budget, the most of the time left to a plan's deadline that rendering its views
+(:class:`PlanningViews`) may take; the rest is the packing's. Views that would take longer are
+not rendered on: the plan is not made (a plan whose views took its time was packed too late
+and dropped, after taking 1.7 s of a 15 s run on the mug from its steps)."""
+
+
 class PlanningViews:
     """What every training camera sees, as a plan reads it: per camera the face of each pixel,
-    one sample per pixel. Rendered on first use and shared by the plans made from it (the
-    aligned and the unaligned layout see the same views: rendering them again cost a
-    second plan as much as the first, 1.2 s of a 15 s run on spot).
+    one sample per pixel. Rendered once, shared by the plans made from it (the aligned and the
+    unaligned layout see the same views).
 
     Every camera of the training pool, not a few: charts that few views see are starved
     otherwise (``benchmarks/repack.py --methods bake``; see
@@ -154,13 +159,32 @@ class PlanningViews:
 
     def __init__(self, renderer: Renderer, config: Any):
         self.renderer, self.config = renderer, config
+        self._tri_ids: list[torch.Tensor] = []
 
-    @cached_property
-    def tri_ids(self) -> list[torch.Tensor]:
-        """Per camera the ``(H, W)`` int tensor of faces (-1: background)."""
+    def render_by(self, deadline: float | None = None, clock: Clock = WALL_CLOCK) -> bool:
+        """Render the views not yet rendered; whether all are. Under a ``deadline`` (an instant
+        on ``clock``), rendering stops as soon as the views left, at the mean time of those
+        rendered here, would end after :data:`PLANNING_VIEWS_SHARE` of the time to it."""
         config, renderer = self.config, self.renderer
         cameras = sample_training_cameras(config.pool_views, config.seed, config.distances)
-        return [renderer.rasterize(camera, renderer.image_size).tri_ids for camera in cameras]
+        started, before = clock.now(), len(self._tri_ids)
+        for camera in cameras[before:]:
+            self._tri_ids.append(renderer.rasterize(camera, renderer.image_size).tri_ids)
+            if deadline is None:
+                continue
+            now, rendered = clock.now(), len(self._tri_ids) - before
+            left = len(cameras) - len(self._tri_ids)
+            if now + left * (now - started) / rendered > started + PLANNING_VIEWS_SHARE * (
+                deadline - started
+            ):
+                return len(self._tri_ids) == len(cameras)
+        return True
+
+    @property
+    def tri_ids(self) -> list[torch.Tensor]:
+        """Per camera the ``(H, W)`` int tensor of faces (-1: background)."""
+        self.render_by()
+        return self._tri_ids
 
 
 def plan_layout(
@@ -476,7 +500,9 @@ def offered_layouts(
     where the views look (``k`` below 1: its scales are powers of two of the original's,
     rounded down) is not weighed, as its bake starts far below Lanczos in the own layout; none
     where the layout does not move a chart or there is no time for it (the reason in
-    ``facts.skipped``). The first one's facts go in ``facts.planned``.
+    ``facts.skipped``; under a deadline a plan whose views would take more than
+    :data:`PLANNING_VIEWS_SHARE` of its time is not made). The first one's facts go in
+    ``facts.planned``.
 
     Args:
         planned_by: the instant on ``clock`` the first plan must be done by (None: no limit);
@@ -488,6 +514,8 @@ def offered_layouts(
         deadline = None if planned_by is None else planned_by - len(atlases) * baking
         if deadline is not None and clock.now() >= deadline:
             break
+        if deadline is not None and not views.render_by(deadline, clock):
+            break  # the views would leave the packing too little of the time
         budget = None if deadline is None else unlimited(clock).until(deadline)
         atlas = plan_layout(mesh, rule, renderer, config, budget, align, views)
         if align or not atlases:
