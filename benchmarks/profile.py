@@ -148,6 +148,7 @@ TARGETS: dict[str, dict[str, object]] = {
         "raced": "race glue",
         "_timely_layouts": "layout: planning",
         "plan_layout": (KIND, "layout planning"),
+        "PlanningViews.render_by": (KIND, "layout planning"),
         "baked_maps": "layout: bake",
         "_new_layout": "layout: set-up",
         "_Trials.run": "race glue",
