@@ -20,6 +20,7 @@ from geoscaler.io.images import IMAGE_FORMATS, encoding_seconds
 from geoscaler.io.slots import slot_info
 from geoscaler.mesh import Material, SourceImage, TexturedMesh
 from geoscaler.methods import MethodResult
+from geoscaler.methods.repacked import oversampling
 from geoscaler.protocol import BYTES_PER_TEXEL
 from geoscaler.render.lit import METALLIC_ROUGHNESS, NORMAL
 from geoscaler.resize.filters import resize_channels
@@ -145,7 +146,7 @@ def _relayout_grid(pixels: np.ndarray, kind: str, plan: SizePlan) -> tuple[int, 
     """``(texels per side, samples per texel side)`` of the map ``pixels`` re-baked into a
     new layout at its class's size."""
     side = plan.rule(kind).size(*pixels.shape[:2])[0]
-    return side, int(np.clip(pixels.shape[0] // side, 1, 4))
+    return side, oversampling(pixels, side)
 
 
 RESIZE_SECONDS_PER_TEXEL = 0.06e-6
