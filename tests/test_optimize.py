@@ -664,6 +664,20 @@ def test_under_a_budget_the_views_owed_in_any_case_are_not_held_back(
     assert [cached_at_step[step] for step in (1, 2, 3, 4)] == [1, 4, 6, 8]
 
 
+def test_no_view_is_cached_after_a_step_past_the_loops_budget(scene, monkeypatch):
+    # A view takes 0.25 s, a step 0.0625 s, nothing need follow the loop. Step 1 ends at
+    # 0.3125 s of a 0.5 s budget: the pool's owed views (two after it, 0.5 s) would end at
+    # 0.8125 s, so none is cached; steps on the one view go on to the budget's end (4: at
+    # 0.3125, 0.375, 0.4375 and 0.5 s).
+    mesh, _, views = scene
+    clock = ManualClock()
+    slow = slow_run(scene, monkeypatch, clock, view_seconds=0.25, step_seconds=0.0625)
+    validation = _Costing(views, output_sizes(mesh, SCALE), seconds=0.0, clock=clock)
+    result = run_on(clock, slow, validation, time_budget=0.5)
+    assert result.training_views == 1 and result.steps == 4
+    assert clock.now() <= 0.5
+
+
 def test_restoring_texels_gives_back_the_candidate_they_came_from(scene):
     mesh, _, _ = scene
     model = lanczos_model(mesh)

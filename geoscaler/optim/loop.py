@@ -386,8 +386,10 @@ class _Caching:
             self.emit("caching", done=len(self.pool), total=needed)
         return True
 
-    def after_step(self, step_seconds: float) -> None:
-        """After a step of ``step_seconds``, under a budget first up to
+    def after_step(self, step_seconds: float, fits: Callable[[float], bool]) -> None:
+        """After a step of ``step_seconds``, where ``fits(seconds)`` says that a view of the
+        pool's mean cost and what must follow the loop still fit its budget (no view is
+        cached past it, owed or not), under a budget first up to
         :data:`CACHED_PER_STEP` views owed in any case (:meth:`_cache_owed`, even past the
         caching window), then :data:`CACHED_PER_STEP` views (under a budget, fewer where
         caching would take more than :data:`CACHING_PER_STEPPING` of the steps' seconds so
@@ -398,7 +400,7 @@ class _Caching:
         (:func:`~geoscaler.process.release_free_memory`)."""
         self.stepping += step_seconds
         for _ in range(CACHED_PER_STEP if self.budget.limited else 0):
-            if self.memory_full() or not self._cache_owed():
+            if not self._room_for_a_view(fits) or not self._cache_owed():
                 break
         if self.window.left() < 0 or self.views_full():
             self.close()
@@ -406,7 +408,7 @@ class _Caching:
             self.validation.freeze()
         else:
             for _ in range(CACHED_PER_STEP):
-                if self.memory_full() or not self._caching_pays():
+                if not self._room_for_a_view(fits) or not self._caching_pays():
                     break
                 started = self.budget.now()
                 cached = self._cache_one()
@@ -417,6 +419,11 @@ class _Caching:
                 self.validation.freeze()
         if self._resident_over(0):
             release_free_memory()
+
+    def _room_for_a_view(self, fits: Callable[[float], bool]) -> bool:
+        """One more view fits in the process's memory and, at the pool's mean cost, ``fits``
+        the loop's budget."""
+        return not self.memory_full() and fits(self.view_cost.mean)
 
     def _pool_owes(self) -> bool:
         """The pool has fewer views than a step draws (:attr:`OptimizeConfig.views_per_step`)."""
@@ -640,7 +647,7 @@ class TrainingLoop:
             if not self._may_step():
                 break
             self._step()
-            self.caching.after_step(self.state.step_seconds)
+            self.caching.after_step(self.state.step_seconds, self.fits)
             if self._nothing_to_gain():
                 self.state.stopped_by = NOTHING_TO_GAIN
                 break
