@@ -206,6 +206,27 @@ def test_padding_violations_count_charts_closer_than_the_padding():
     assert padding_violations(texels, labels, 8, 4) == 2  # each sees the other
 
 
+def test_padding_violations_are_the_texels_that_see_another_chart_wrapping_around():
+    rng = np.random.default_rng(3)
+    size, padding = 12, 3
+    texels = rng.choice(size * size, 20, replace=False)
+    labels = rng.integers(0, 4, 20)
+    texels, labels = np.r_[texels, texels[:2]], np.r_[labels, labels[:2] + 1]  # two overlaps
+    grid = np.full((size, size), -1)
+    grid.reshape(-1)[texels] = labels
+    grid.reshape(-1)[texels[:2]] = -1  # overlaps count for no chart
+    expected = 0
+    for row, col in zip(*np.nonzero(grid >= 0), strict=True):
+        near = [
+            grid[(row + dy) % size, (col + dx) % size]
+            for dy in range(-padding + 1, padding)
+            for dx in range(-padding + 1, padding)
+        ]
+        expected += any(other >= 0 and other != grid[row, col] for other in near)
+    assert expected > 0
+    assert padding_violations(texels, labels, size, padding) == expected
+
+
 def test_a_face_covers_the_texels_of_the_samples_inside_it_edges_included():
     # a right triangle on a 4 x 4 grid, two samples a side: its legs run through the centres of
     # samples 0 and 5 (u = 0.0625, 0.6875 in sample units 0.5, 5.5), its hypotenuse through
@@ -358,20 +379,35 @@ def sized_placing(tried: list[tuple[int, float]], fits):
     return place
 
 
-def test_a_large_atlas_is_searched_coarse_then_confirmed_at_full_size(monkeypatch):
+def test_a_large_atlas_is_searched_coarse_then_climbs_at_full_size(monkeypatch):
     # the unit square fits up to 45 % of the all-texels density in the half-size atlas and up
-    # to 47 % at full size: the full size confirms the coarse answer, then bisects above it
+    # to 47 % at full size: the coarse search aims (no probes, a wider bracket), the full size
+    # climbs from just above its answer in CLIMB steps while they fit
     tried = []
     limit = {512: 0.45, 1024: 0.47}
     fits = sized_placing(tried, lambda size, tpu: tpu < limit[size] * size)
     monkeypatch.setattr(packing, "_place", fits)
     packed = pack(square_chart(), np.ones(1), 1024, 4, rotate=False)
+    coarse = [tpu for size, tpu in tried if size == 512]
     full = [tpu for size, tpu in tried if size == 1024]
-    assert {size for size, _ in tried} == {512, 1024}
-    assert tried[-len(full) :] == [(1024, tpu) for tpu in full]  # coarse first
-    assert 0.45 * 1024 / packing.SEARCH_RATIO <= full[0] < 0.45 * 1024  # the coarse answer
-    assert len(full) <= 5  # the answer, then a bisection across COARSE_SPAN
-    assert 0.47 * 1024 / packing.SEARCH_RATIO <= packed.texels_per_unit < 0.47 * 1024
+    assert tried == [(512, tpu) for tpu in coarse] + [(1024, tpu) for tpu in full]
+    assert len(coarse) == 7  # ln 16 / 2^7 < ln 1.04 < ln 16 / 2^6
+    answer = max(tpu for tpu in coarse if tpu < 0.45 * 512) * 2
+    assert 0.45 * 1024 / packing.COARSE_RATIO <= answer < 0.45 * 1024
+    assert full == pytest.approx([answer * 1.03 ** (n + 1) for n in range(len(full))])
+    assert len(full) <= 3  # 45 % to 47 % is under two climbs
+    assert 0.47 * 1024 / packing.CLIMB <= packed.texels_per_unit < 0.47 * 1024
+
+
+def test_where_the_coarse_answer_overshoots_the_full_size_tries_just_below_it(monkeypatch):
+    tried = []
+    limit = {512: 0.45, 1024: 0.44}  # the full size fits less: 3 % above does not fit
+    monkeypatch.setattr(packing, "_place", sized_placing(tried, lambda s, t: t < limit[s] * s))
+    packed = pack(square_chart(), np.ones(1), 1024, 4, rotate=False)
+    full = [tpu for size, tpu in tried if size == 1024]
+    answer = full[0] / packing.REFINE_STEPS[0]
+    assert full == pytest.approx([answer * step for step in packing.REFINE_STEPS[: len(full)]])
+    assert packed.texels_per_unit == pytest.approx(full[-1]) and full[-1] < 0.44 * 1024
 
 
 def test_where_the_coarse_answer_misleads_the_full_size_is_searched_from_scratch(monkeypatch):
@@ -573,3 +609,17 @@ def test_a_chart_spanning_the_atlas_is_cut_where_the_pieces_pack_denser():
     cut = ribbon.with_uvs(atlas.uvs)
     np.testing.assert_array_equal(chart_labels(cut), atlas.chart_of_face)  # pieces as charts
     np.testing.assert_array_equal(cut.positions[cut.faces], ribbon.positions[ribbon.faces])
+
+
+def test_each_charts_affine_map_and_largest_residual_are_fitted_at_once():
+    # chart 0 moved by a quarter turn and scale 2, chart 1 by a shift, one of its points off
+    old = np.array([[0, 0], [1, 0], [0, 1], [0.2, 0.3], [5, 5], [6, 5], [5, 7]], np.float64)
+    chart = np.array([0, 0, 0, 0, 1, 1, 1])
+    turn = np.array([[0.0, -2.0], [2.0, 0.0]])
+    new = np.r_[old[:4] @ turn.T + [3, 4], old[4:] + [-1, 0.5]]
+    new[6] += [0.0, 0.03]
+    linear, offset, residual = packing._fit(old, chart, new, 2)
+    np.testing.assert_allclose(linear[0], turn, atol=1e-12)
+    np.testing.assert_allclose(offset[0], [3, 4], atol=1e-12)
+    assert residual[0] < 1e-12
+    assert 0.0 < residual[1] <= 0.03

@@ -603,7 +603,7 @@ def group_problems(mesh: TexturedMesh, atlas: Atlas, group: int) -> list[str]:
         problems.append(f"{len(shared)} texels covered by two charts")
     close = padding_violations(texels, labels, size, atlas.paddings[group])
     if close:
-        problems.append(f"{close} texel pairs of two charts closer than the padding")
+        problems.append(f"{close} texels closer to another chart than the padding")
     align = atlas.alignments[group] if group < len(atlas.alignments) else 1
     steps = atlas.offset[charts] * size / align
     if align > 1 and np.abs(steps - np.round(steps)).max(initial=0) > 1e-6:

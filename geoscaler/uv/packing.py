@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import xatlas
+from scipy.ndimage import maximum_filter, minimum_filter
 
 from geoscaler.clock import WALL_CLOCK, Budget, Clock
 from geoscaler.errors import GeoscalerError
@@ -63,12 +64,19 @@ COARSE_FACTOR = 2
 bitmaps of the atlas's texels, and a packing of a 4096 scan's charts into 512 texels costs a
 third of one into 1024 (0.06 against 0.19 s, ycb_chain); a coarse texel covers four, so what
 fits coarse mostly fits at full size (see docs/decisions/packing-xatlas-settings.md)."""
-REFINE_STEPS = (1.0, 1 / 1.02, 1 / 1.05, 1 / 1.1)
-"""Densities, relative to the coarse search's answer, tried at full size until one fits."""
+COARSE_RATIO = 1.04
+"""The coarse search stops once its bracket is this narrow, and tries no :data:`PROBES`: it
+only aims the full size's search, which climbs from its answer (:data:`CLIMB`)."""
+REFINE_STEPS = (1.03, 1.0, 1 / 1.02, 1 / 1.05, 1 / 1.1)
+"""Densities, relative to the coarse search's answer, tried at full size until one fits; where
+the first fits, the search climbs above it (:data:`CLIMB`)."""
+CLIMB = 1.03
+"""Density step of the climb above the coarse answer at full size (coarse bitmaps waste texels
+at the charts' edges: the full size fits more, 6 % on ycb_peach): 3 % more texels a side is
+0.2 dB of bicubic's loss at 5 dB per halving, for two or three full-size packings instead of
+five."""
 COARSE_SPAN = 1.1
-"""Above the density that fits at full size, a bisection looks up to this factor higher
-(coarse bitmaps waste texels at the charts' edges: the full size fits more, 6 % on
-ycb_peach)."""
+"""The climb goes no higher than this factor above the coarse answer."""
 EDGE_HAIR = 1e-7
 """Samples this close to a face's edge (in samples) count as inside it (:func:`sample_spans`)."""
 SCALE_TOLERANCE = 1e-3
@@ -229,14 +237,23 @@ def _retire(atlas: xatlas.Atlas, clock: Clock = WALL_CLOCK) -> None:
 
 def _fit(old: np.ndarray, chart: np.ndarray, new: np.ndarray, count: int):
     """Per chart the least-squares affine map ``new = linear @ old + offset`` and its largest
-    residual: ``((C, 2, 2), (C, 2), (C,))``."""
-    linear, offset, residual = np.zeros((count, 2, 2)), np.zeros((count, 2)), np.zeros(count)
-    for index in range(count):
-        mine = chart == index
-        design = np.c_[old[mine], np.ones(mine.sum())]
-        solution, *_ = np.linalg.lstsq(design, new[mine], rcond=None)
-        linear[index], offset[index] = solution[:2].T, solution[2]
-        residual[index] = np.abs(design @ solution - new[mine]).max()
+    residual: ``((C, 2, 2), (C, 2), (C,))``, from the ``(P, 2)`` ``old`` and ``new`` points of
+    each ``(P,)`` ``chart``: about their means, ``linear`` is the cross-covariance times the
+    pseudo-inverse of the scatter (all charts at once)."""
+    points = np.maximum(np.bincount(chart, minlength=count), 1)[:, None]
+    old_mean = np.stack([np.bincount(chart, old[:, i], count) for i in (0, 1)], 1) / points
+    new_mean = np.stack([np.bincount(chart, new[:, i], count) for i in (0, 1)], 1) / points
+    about_old, about_new = old - old_mean[chart], new - new_mean[chart]
+    scatter, cross = np.zeros((count, 2, 2)), np.zeros((count, 2, 2))
+    for i in (0, 1):
+        for j in (0, 1):
+            scatter[:, i, j] = np.bincount(chart, about_old[:, i] * about_old[:, j], count)
+            cross[:, i, j] = np.bincount(chart, about_new[:, i] * about_old[:, j], count)
+    linear = cross @ np.linalg.pinv(scatter)
+    offset = new_mean - np.einsum("cij,cj->ci", linear, old_mean)
+    error = np.einsum("pij,pj->pi", linear[chart], old) + offset[chart] - new
+    residual = np.zeros(count)
+    np.maximum.at(residual, chart, np.abs(error).max(axis=1))
     return linear, offset, residual
 
 
@@ -324,6 +341,7 @@ def pack(
     rotate: bool,
     budget: Budget | None = None,
     grid: float | None = None,
+    aim: bool = False,
 ) -> Packed:
     """The densest packing of ``charts``, each scaled by ``scales`` ``(C,)``, into one
     ``size x size`` atlas with ``padding`` texels between charts; charts turn by multiples of
@@ -335,10 +353,11 @@ def pack(
     the packed scales are ``sqrt(|det linear|)``, not ``scales`` times the density.
 
     Atlases of at least :data:`COARSE_MIN_SIZE` are searched at a smaller size first
-    (:data:`COARSE_FACTOR`), where a packing costs a third; at full size the coarse answer (or
-    a density :data:`REFINE_STEPS` below it) is confirmed and a short bisection looks up to
-    :data:`COARSE_SPAN` above it. Where nothing near the coarse answer fits, the full size is
-    searched from scratch: a bisection from 1/16 of the all-texels density, then
+    (:data:`COARSE_FACTOR`), where a packing costs a third, to :data:`COARSE_RATIO` (``aim``:
+    the search is such an aim); at full size :data:`REFINE_STEPS` times the coarse answer are
+    tried until one fits, and where the first does, the search climbs above it by
+    :data:`CLIMB` up to :data:`COARSE_SPAN`. Where nothing near the coarse answer fits, the
+    full size is searched from scratch: a bisection from 1/16 of the all-texels density, then
     :data:`PROBES`.
 
     Raises:
@@ -357,23 +376,23 @@ def pack(
     if size >= COARSE_MIN_SIZE:
         coarse = size // COARSE_FACTOR
         factor = size / coarse
+        padded = math.ceil(padding / factor)
         try:
-            rough = pack(charts, scales, coarse, math.ceil(padding / factor), rotate, budget, grid)
+            rough = pack(charts, scales, coarse, padded, rotate, budget, grid, aim=True)
         except PackingError:
             rough = None
         if rough is not None:
-            guess = rough.texels_per_unit * factor
-            best = search.first_fit(guess)
+            best = search.refine(rough.texels_per_unit * factor)
             if best is not None:
-                return search.bisect(best.texels_per_unit, guess * COARSE_SPAN, best)
-    best = search.bisect(every_texel / 16, every_texel)
+                return best
+    best = search.bisect(every_texel / 16, every_texel, COARSE_RATIO if aim else SEARCH_RATIO)
     if best is None and search.late():
         raise PackingError("the time budget left no time to pack the UV charts")
     if best is None:
         raise PackingError(
             f"the UV charts do not fit one {size}x{size} atlas at their planned scales"
         )
-    return search.probe(best)
+    return best if aim else search.probe(best)
 
 
 @dataclass
@@ -401,24 +420,32 @@ class _Search:
                                     self.rotate, self.boxes, self.grid)  # fmt: skip
         return packed
 
-    def first_fit(self, guess: float) -> Packed | None:
-        """The packing at ``guess`` or a density :data:`REFINE_STEPS` below it, the first
-        that fits, or None."""
-        for step in REFINE_STEPS:
+    def refine(self, guess: float) -> Packed | None:
+        """The packing at the first of :data:`REFINE_STEPS` times ``guess`` that fits, or None;
+        where the first fits, the densest of the climb above it (:data:`CLIMB`, up to
+        :data:`COARSE_SPAN` times ``guess``)."""
+        for index, step in enumerate(REFINE_STEPS):
             if self.late():
                 return None
-            packed = self.place(guess * step)
-            if packed is not None:
-                return packed
+            best = self.place(guess * step)
+            if best is not None and index > 0:
+                return best
+            if best is not None:
+                while not self.late() and best.texels_per_unit * CLIMB <= guess * COARSE_SPAN:
+                    denser = self.place(best.texels_per_unit * CLIMB)
+                    if denser is None:
+                        break
+                    best = denser
+                return best
         return None
 
-    def bisect(self, low: float, high: float, best: Packed | None = None) -> Packed | None:
-        """The densest packing a bisection finds between densities ``low`` (``best``'s where
-        given, else not known to fit) and ``high`` (not known to fit), or ``best``: at most
-        :data:`SEARCH_STEPS` looks, until the bracket is :data:`SEARCH_RATIO` narrow or the
-        budget ends."""
+    def bisect(self, low: float, high: float, ratio: float) -> Packed | None:
+        """The densest packing a bisection finds between densities ``low`` and ``high`` (neither
+        known to fit), or None: at most :data:`SEARCH_STEPS` looks, until the bracket is
+        ``ratio`` narrow or the budget ends."""
+        best = None
         for _ in range(SEARCH_STEPS):
-            if self.late() or high <= low * SEARCH_RATIO:
+            if self.late() or high <= low * ratio:
                 break
             middle = math.sqrt(low * high)
             packed = self.place(middle)
@@ -454,8 +481,16 @@ def chart_texels(
     span, offset = _expand(last - first + 1)
     col = np.mod(first[span] + offset, size)
     texel_row = np.mod(row[span] // supersample, size)
+    texel, label = texel_row * size + col, labels[face[span]]
     count = int(labels.max(initial=0)) + 1
-    keys = np.unique((texel_row * size + col) * count + labels[face[span]])  # by texel, label
+    least = np.full(size * size, count)
+    np.minimum.at(least, texel, label)
+    largest = np.full(size * size, -1)
+    np.maximum.at(largest, texel, label)
+    mixed = (least < largest)[texel]  # texels of two labels or more: each pair once
+    keys = np.unique(texel[mixed] * count + label[mixed])
+    single = np.flatnonzero(least == largest)
+    keys = np.sort(np.r_[single * count + least[single], keys])  # by texel, then label
     return keys // count, keys % count
 
 
@@ -511,19 +546,19 @@ def overlapping_texels(texels: np.ndarray, labels: np.ndarray) -> np.ndarray:
 
 
 def padding_violations(texels: np.ndarray, labels: np.ndarray, size: int, padding: int) -> int:
-    """Texels of one chart with a texel of another chart at most ``padding`` texels away
-    (Chebyshev distance, repeat addressing): 0 when at least ``padding - 1`` empty texels
-    separate every two charts... counted as pairs of texels closer than ``padding``."""
+    """Texels of one chart with a texel of another chart less than ``padding`` texels away
+    (Chebyshev distance, repeat addressing; texels two charts cover are
+    :func:`overlapping_texels`' and count for neither): 0 when at least ``padding - 1`` empty
+    texels separate every two charts. Per texel, the least and the largest label within its
+    window (separable minimum and maximum filters) differ from its own where a neighbour is
+    another chart's."""
     grid = np.full(size * size, -1, np.int64)
     grid[texels] = labels
-    grid[overlapping_texels(texels, labels)] = -2
+    grid[overlapping_texels(texels, labels)] = -1
     grid = grid.reshape(size, size)
-    reach = max(padding - 1, 0)
-    bad = 0
-    for dy in range(-reach, reach + 1):
-        for dx in range(-reach, reach + 1):
-            if (dy, dx) == (0, 0):
-                continue
-            other = np.roll(grid, (dy, dx), axis=(0, 1))
-            bad += int(((grid >= 0) & (other >= 0) & (grid != other)).sum())
-    return bad
+    window = 2 * max(padding - 1, 0) + 1
+    charted = grid >= 0
+    largest = maximum_filter(grid, size=window, mode="wrap")
+    unlabelled = int(grid.max(initial=0)) + 1  # (the filters mishandle int64's largest)
+    least = minimum_filter(np.where(charted, grid, unlabelled), size=window, mode="wrap")
+    return int((charted & ((largest != grid) | (least != grid))).sum())
