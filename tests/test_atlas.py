@@ -30,7 +30,9 @@ from geoscaler.uv.atlas import (
     alignment_for,
     atlas_problems,
     chart_footprint,
+    cut_lengths,
     layout_groups,
+    plan_charts,
     planned_scales,
     repack,
 )
@@ -609,6 +611,19 @@ def test_a_chart_spanning_the_atlas_is_cut_where_the_pieces_pack_denser():
     cut = ribbon.with_uvs(atlas.uvs)
     np.testing.assert_array_equal(chart_labels(cut), atlas.chart_of_face)  # pieces as charts
     np.testing.assert_array_equal(cut.positions[cut.faces], ribbon.positions[ribbon.faces])
+
+
+def test_a_long_chart_is_cut_to_half_the_atlas_where_it_would_fill_every_texel():
+    # the ribbon's one chart, 0.9 x 0.1 UV units, fills the atlas at 1 / sqrt(0.09) new UV
+    # units per old one: half the atlas is 0.5 * 0.3 = 0.15 old units, however densely the
+    # whole chart happened to pack
+    ribbon = ribbon_mesh(quads=16)
+    charts = chart_labels(ribbon)
+    every_face = [torch.arange(len(ribbon.faces))]
+    whole = plan_charts(ribbon, [(SIZE, SIZE)], charts, every_face, 256, None)
+    assert cut_lengths(ribbon, whole, charts) == pytest.approx([0.15], rel=1e-5)
+    sparser = replace(whole, planned=whole.planned * 0.9)
+    assert cut_lengths(ribbon, sparser, charts) == pytest.approx([0.15], rel=1e-5)
 
 
 def test_each_charts_affine_map_and_largest_residual_are_fitted_at_once():
