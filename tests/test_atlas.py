@@ -27,6 +27,7 @@ from geoscaler.uv import packing
 from geoscaler.uv.atlas import (
     ALIGNMENT,
     CUT_GAIN,
+    LEAST_GAIN,
     alignment_for,
     atlas_problems,
     chart_footprint,
@@ -121,6 +122,22 @@ def test_repack_raises_the_density_of_a_sparse_atlas():
     assert atlas.facts.charts_cut == 0 and not atlas.facts.cut  # no chart spans half
     assert atlas.facts.vertices_added == 0
     assert len(mesh.with_uvs(atlas.uvs).uvs) == len(mesh.uvs)  # every vertex keeps one UV
+
+
+def test_a_layout_sparser_than_half_the_own_one_is_not_searched_for(monkeypatch):
+    # equal footprints and equal squares: k is the packed scale, texels per unit over the
+    # atlas's side; the search starts no sparser than LEAST_GAIN of the own layout's
+    mesh = cube_mesh()
+    sparsest = []
+    pack = atlas_module.pack
+
+    def recording_pack(*args, **kwargs):
+        sparsest.append(kwargs["sparsest"])
+        return pack(*args, **kwargs)
+
+    monkeypatch.setattr(atlas_module, "pack", recording_pack)
+    repack(mesh, [(SIZE, SIZE)], footprint_ids(mesh, [10] * 6), 256, align=False)
+    assert sparsest == [pytest.approx(LEAST_GAIN * SIZE)]
 
 
 def test_each_chart_moves_by_a_similarity_at_its_planned_scale():
@@ -359,14 +376,24 @@ def placing(tried: list[float], fits):
 
 
 def test_the_density_search_stops_once_its_bracket_is_narrow(monkeypatch):
-    # charts fit below half the all-texels density (32): the bisection from 1/16 of it narrows
-    # to SEARCH_RATIO in 9 looks (ln 16 / 2^9 < ln 1.01 < ln 16 / 2^8), then the probes above
+    # charts fit below half the all-texels density (32): the bisection between 1/16 of it and
+    # it narrows to SEARCH_RATIO in 9 looks (ln 16 / 2^9 < ln 1.01 < ln 16 / 2^8), then the
+    # probes above
     tried = []
     monkeypatch.setattr(packing, "_place", placing(tried, lambda tpu: tpu < 16.0))
     packed = pack(square_chart(), np.ones(1), 32, 1, rotate=False)
+    assert tried[0] == 8.0  # the bracket's middle first
     bisection = tried[: -len(packing.PROBES)]
     assert len(bisection) == 9
     assert 16.0 / packing.SEARCH_RATIO <= packed.texels_per_unit < 16.0
+
+
+def test_the_search_gives_up_where_its_sparsest_density_does_not_fit(monkeypatch):
+    tried = []
+    monkeypatch.setattr(packing, "_place", placing(tried, lambda tpu: False))
+    with pytest.raises(PackingError, match="do not fit"):
+        pack(square_chart(), np.ones(1), 32, 1, rotate=False, sparsest=12.0)
+    assert tried == [pytest.approx((12.0 * 32) ** 0.5), 12.0]  # no bisection of failures
 
 
 def sized_placing(tried: list[tuple[int, float]], fits):
@@ -393,7 +420,7 @@ def test_a_large_atlas_is_searched_coarse_then_climbs_at_full_size(monkeypatch):
     coarse = [tpu for size, tpu in tried if size == 512]
     full = [tpu for size, tpu in tried if size == 1024]
     assert tried == [(512, tpu) for tpu in coarse] + [(1024, tpu) for tpu in full]
-    assert len(coarse) == 7  # ln 16 / 2^7 < ln 1.04 < ln 16 / 2^6
+    assert coarse[0] == 512 / 4 and len(coarse) == 7  # then ln 4 / 2^6 < ln 1.04 < ln 4 / 2^5
     answer = max(tpu for tpu in coarse if tpu < 0.45 * 512) * 2
     assert 0.45 * 1024 / packing.COARSE_RATIO <= answer < 0.45 * 1024
     assert full == pytest.approx([answer * 1.03 ** (n + 1) for n in range(len(full))])

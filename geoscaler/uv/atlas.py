@@ -83,6 +83,11 @@ scans one chart can span the whole square at 4x)."""
 SEPARATION = 1e-3
 """UV units between the shifts of a cut chart's pieces as xatlas sees them
 (:func:`group_charts`)."""
+LEAST_GAIN = 0.5
+"""The sparsest layout worth a packing, as its ``k`` would be at its relative scales (half the
+own layout's texels a side where the views look: 5 dB below it by bicubic's loss per halving,
+more than a race's start margin accepts): the packing's search starts there and gives up where
+that does not fit (:func:`~geoscaler.uv.packing.pack`'s ``sparsest``)."""
 CUT_GAIN = 1.1
 """Least gain in ``k`` for which a layout with cut charts is taken over the whole charts'
 (5 log2 1.1 = 0.7 dB by bicubic's 5 dB per halving): cuts add seams and vertices."""
@@ -508,17 +513,21 @@ def _lay_out(
     aligned = align and cap is not None
     blocks = alignment_for(mesh, mesh.faces[faces], size, samples_per_side) if aligned else 1
     grid, packed, spacing = cap if blocks > 1 else None, None, padding + PACKER_MARGIN
+    weights = atlas.footprint[ids]
+    sparsest = LEAST_GAIN * size / weighted_gain(scales, weights)
     if grid is not None:
         try:  # the spacing leaves room for rounding the offsets
-            packed = pack(group, scales, size, spacing + blocks, rotate, budget, grid)
+            packed = pack(group, scales, size, spacing + blocks, rotate, budget, grid,
+                          sparsest=sparsest)  # fmt: skip
         except PackingError:
             blocks, grid = 1, None  # aligned, the charts do not fit: unaligned
     if packed is None:
-        packed = pack(group, scales, size, spacing, rotate, budget)
+        packed = pack(group, scales, size, spacing, rotate, budget, sparsest=sparsest)
         tpu = packed.texels_per_unit
         if cap is not None and (scales * tpu / size > cap).any():
             scales = np.minimum(scales, cap * size / tpu)
-            packed = pack(group, scales, size, spacing, rotate, budget)
+            sparsest = LEAST_GAIN * size / weighted_gain(scales, weights)
+            packed = pack(group, scales, size, spacing, rotate, budget, sparsest=sparsest)
     before = copy.deepcopy(atlas)
     offset = packed.offset + np.einsum("cij,cj->ci", packed.linear, shift)
     if grid is not None:

@@ -342,6 +342,7 @@ def pack(
     budget: Budget | None = None,
     grid: float | None = None,
     aim: bool = False,
+    sparsest: float | None = None,
 ) -> Packed:
     """The densest packing of ``charts``, each scaled by ``scales`` ``(C,)``, into one
     ``size x size`` atlas with ``padding`` texels between charts; charts turn by multiples of
@@ -352,13 +353,17 @@ def pack(
     density tried is rounded down to that grid times a power of two (:func:`aligned_scales`):
     the packed scales are ``sqrt(|det linear|)``, not ``scales`` times the density.
 
+    The search looks first at ``sparsest``, the least density worth a packing (texels per
+    scaled UV unit; None: 1/16 of the density at which the charts would fill every texel), and
+    gives up where even that does not fit: charts that many small ones' paddings crowd out of
+    the atlas fail at every density, each failed packing as costly as one that fits.
+
     Atlases of at least :data:`COARSE_MIN_SIZE` are searched at a smaller size first
     (:data:`COARSE_FACTOR`), where a packing costs a third, to :data:`COARSE_RATIO` (``aim``:
     the search is such an aim); at full size :data:`REFINE_STEPS` times the coarse answer are
     tried until one fits, and where the first does, the search climbs above it by
     :data:`CLIMB` up to :data:`COARSE_SPAN`. Where nothing near the coarse answer fits, the
-    full size is searched from scratch: a bisection from 1/16 of the all-texels density, then
-    :data:`PROBES`.
+    full size is searched from scratch: a bisection from ``sparsest``, then :data:`PROBES`.
 
     Raises:
         PackingError: not even a sparse packing holds the charts at their planned scales, or
@@ -372,26 +377,30 @@ def pack(
         ).sum()
     )
     every_texel = size / math.sqrt(max(area, 1e-30))
+    least = every_texel / 16 if sparsest is None else min(sparsest, every_texel)
     search = _Search(charts, scales, size, padding, rotate, budget, grid)
     if size >= COARSE_MIN_SIZE:
         coarse = size // COARSE_FACTOR
         factor = size / coarse
         padded = math.ceil(padding / factor)
         try:
-            rough = pack(charts, scales, coarse, padded, rotate, budget, grid, aim=True)
+            rough = pack(charts, scales, coarse, padded, rotate, budget, grid, True, least / factor)
         except PackingError:
             rough = None
         if rough is not None:
             best = search.refine(rough.texels_per_unit * factor)
             if best is not None:
                 return best
-    best = search.bisect(every_texel / 16, every_texel, COARSE_RATIO if aim else SEARCH_RATIO)
+    best = search.start(least, every_texel)
     if best is None and search.late():
         raise PackingError("the time budget left no time to pack the UV charts")
     if best is None:
         raise PackingError(
             f"the UV charts do not fit one {size}x{size} atlas at their planned scales"
+            + ("" if sparsest is None else ", even at the least density worth packing")
         )
+    ratio = COARSE_RATIO if aim else SEARCH_RATIO
+    best = search.bisect(best.texels_per_unit, every_texel, ratio, best)
     return best if aim else search.probe(best)
 
 
@@ -439,11 +448,21 @@ class _Search:
                 return best
         return None
 
-    def bisect(self, low: float, high: float, ratio: float) -> Packed | None:
-        """The densest packing a bisection finds between densities ``low`` and ``high`` (neither
-        known to fit), or None: at most :data:`SEARCH_STEPS` looks, until the bracket is
+    def start(self, least: float, most: float) -> Packed | None:
+        """A first packing for the bisection: at the geometric middle of densities ``least``
+        and ``most``, else at ``least``; None where neither fits (or the budget ended)."""
+        for density in (math.sqrt(least * most), least):
+            if self.late():
+                return None
+            packed = self.place(density)
+            if packed is not None:
+                return packed
+        return None
+
+    def bisect(self, low: float, high: float, ratio: float, best: Packed) -> Packed:
+        """The densest packing a bisection finds between densities ``low`` (``best``'s) and
+        ``high`` (not known to fit): at most :data:`SEARCH_STEPS` looks, until the bracket is
         ``ratio`` narrow or the budget ends."""
-        best = None
         for _ in range(SEARCH_STEPS):
             if self.late() or high <= low * ratio:
                 break
