@@ -61,6 +61,7 @@ def run_downsample(
 ) -> dict:
     """One ``geoscaler downsample`` as a user runs it (``loop``: JSON overrides of the loop's
     settings); its report's facts and the wall time."""
+    mesh, out = mesh.resolve(), out.resolve()
     output, report = out / "out.glb", out / "report.json"
     cli = ["-m", "geoscaler.cli"] if loop is None else ["-c", LOOP_OVERRIDE, loop]
     command = [sys.executable, *cli, "downsample", str(mesh), "--scale",
@@ -70,7 +71,9 @@ def run_downsample(
     neighbour = subprocess.Popen([sys.executable, "-c", BUSY_LOOP]) if busy else None
     try:
         started = time.perf_counter()
-        done = subprocess.run(command, capture_output=True, text=True, env=os.environ)
+        # run in the output folder: `-m` puts the working directory first on the module path,
+        # so a checkout there would shadow the package PYTHONPATH names (comparing two trees)
+        done = subprocess.run(command, capture_output=True, text=True, env=os.environ, cwd=out)
         wall = time.perf_counter() - started
     finally:
         if neighbour is not None:

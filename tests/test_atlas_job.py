@@ -162,6 +162,7 @@ def fake_race(
     context: RunContext | None = None,
     winner: str | None = None,
     ends: list | None = None,
+    worst: dict[str, float] | None = None,
 ):
     """``--uv auto``'s race with every phase's loop faked: the first trial makes
     ``first_made`` steps and stops for ``first_stopped_by``, later phases make the steps they
@@ -169,7 +170,8 @@ def fake_race(
     facts, ``(layout, steps)`` per phase, how many times the new layouts were planned, and the
     layouts whose training pool was still held as the race's last phase started; ``ends``
     receives ``(layout, loop end, reserve)`` per phase. The race runs in ``context`` (default:
-    no budget); the new layout has an atlas."""
+    no budget); the new layout has an atlas. With ``worst`` (each filter's lowest PSNR-fg
+    over the validation's views) the job finishes where nothing visible is left to gain."""
     import gc
     import weakref
     from types import SimpleNamespace
@@ -216,6 +218,7 @@ def fake_race(
         sizes=[(64, 64)],
         seconds_needed=lambda *args: 0.0,
         view_cost=0.0,
+        worst_baseline_views=lambda: worst or {},
     )
 
     def layout(name: str) -> SimpleNamespace:
@@ -232,7 +235,12 @@ def fake_race(
     model = SimpleNamespace(restore=lambda textures: None, candidate=lambda: None)
     facts = LayoutFacts(uv="auto")
     context = context or RunContext()
-    config = OptimizeConfig(steps=steps, pool_views=4, time_budget=context.time_budget)
+    config = OptimizeConfig(
+        steps=steps,
+        pool_views=4,
+        time_budget=context.time_budget,
+        finish_when_invisible=worst is not None,
+    )
     own = {"keep": layout("keep")}
     start_model = lambda *args: model  # noqa: E731
     result = repacked.raced(None, None, own, start_model, config, context, 0.0, facts, later)
@@ -281,6 +289,21 @@ def test_a_first_trial_with_nothing_visible_to_gain_ships_before_any_layout_is_p
     assert fits == [("keep", 2)] and result.loop.steps == 2  # it ships what the trial found
     assert plans == 0 and "beyond what is visible" in facts.skipped
     assert facts.used == "keep"
+
+
+def test_a_first_trial_whose_views_show_nothing_visible_to_gain_plans_no_layout(monkeypatch):
+    # the trial's loop ended at its share before it looked; its validation, frozen as it
+    # ended, has a filter at the invisible level on every view: the race ends there
+    from geoscaler.optim.loop import INVISIBLE_PSNR_FG, NOTHING_TO_GAIN
+
+    worst = {"lanczos": INVISIBLE_PSNR_FG, "bicubic": 45.0}
+    result, facts, fits, plans, _ = fake_race(monkeypatch, 2, "time budget", worst=worst)
+    assert fits == [("keep", 2)] and plans == 0
+    assert result.loop.stopped_by == NOTHING_TO_GAIN
+    assert "beyond what is visible" in facts.skipped and facts.used == "keep"
+    worst = {"lanczos": INVISIBLE_PSNR_FG - 0.01}
+    _, _, fits, plans, _ = fake_race(monkeypatch, 2, "time budget", worst=worst)
+    assert plans == 1 and fits[:2] == [("keep", 2), ("repack", 2)]
 
 
 def test_the_new_layouts_are_planned_after_the_own_layouts_trial(cube, monkeypatch):

@@ -44,6 +44,7 @@ from geoscaler.optim.loop import (
     LoopSetup,
     OptimizeConfig,
     Phase,
+    nothing_visible_to_gain,
     validate,
 )
 from geoscaler.optim.validation import (
@@ -654,10 +655,20 @@ class _Trials:
         result = phase.fit(
             mesh, rule, layout, model, deadline, 0.0, self.steps_each, pool=pool, **handover
         )
+        if first and self.planning_follows and self._invisible(layout.validation, result):
+            result.loop = replace(result.loop, stopped_by=NOTHING_TO_GAIN)
         self.results[name], self.models[name], self.pools[name] = result, model, pool
         self.steps += result.loop.steps
         if first:
             self.steps_each = result.loop.steps
+
+    def _invisible(self, validation: Validation, first: MethodResult) -> bool:
+        """Whether the first trial ended with its validation showing a filter beyond what is
+        visible, where its loop did not look (the least views came with its last caching):
+        the race then plans no layout for a gain no one could see."""
+        if not self.config.finish_when_invisible or first.loop.stopped_by == NOTHING_TO_GAIN:
+            return False
+        return bool(nothing_visible_to_gain(validation))
 
     def _first_deadline(self, validation: Validation) -> float | None:
         """When the first trial ends (None: no budget): after what the race pays once, whatever

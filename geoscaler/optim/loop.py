@@ -315,6 +315,13 @@ def validate(validation: Validation, candidate: Candidate) -> dict[str, float]:
     return validation.psnr([None if t is None else quantize_linear(t) for t in textures], uvs)
 
 
+def nothing_visible_to_gain(validation: Validation) -> bool | None:
+    """Whether a baseline already validates at :data:`INVISIBLE_PSNR_FG` or more on every view
+    of every set; None until each set has its least views."""
+    worst = validation.worst_baseline_views()
+    return max(worst.values()) >= INVISIBLE_PSNR_FG if worst else None
+
+
 class _Caching:
     """Caches the training pool and the validation views between steps.
 
@@ -661,11 +668,9 @@ class TrainingLoop:
         (``config.finish_when_invisible``)."""
         if self.state.looked_for_gain or not self.config.finish_when_invisible:
             return False
-        worst = self.validation.worst_baseline_views()
-        if not worst:
-            return False
-        self.state.looked_for_gain = True
-        return max(worst.values()) >= INVISIBLE_PSNR_FG
+        invisible = nothing_visible_to_gain(self.validation)
+        self.state.looked_for_gain = invisible is not None
+        return bool(invisible)
 
     # --------------------------------------------------------------------------- the budget
 

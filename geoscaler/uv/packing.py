@@ -42,7 +42,7 @@ from geoscaler.errors import GeoscalerError
 MIN_BOX_TEXELS = 2.0
 """Smallest side, in atlas texels, of the box a tiny chart is packed as."""
 SEARCH_STEPS = 12
-"""Most bisection steps of the density search (from 1/16 of the all-texels bound)."""
+"""Most bisection steps of the density search."""
 SEARCH_RATIO = 1.01
 """The density search stops once its bracket is this narrow (highest density tried that
 failed over the highest that fitted): 1 % more texels a side is 0.09 dB of bicubic's loss at
