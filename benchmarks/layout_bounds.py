@@ -146,20 +146,27 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def planning_arguments(description: str) -> tuple[argparse.Namespace, list]:
+    """The arguments of a benchmark that plans layouts of meshes (PATH ..., ``--scale``,
+    ``--device``, ``--json``) and the meshes they name (:func:`find_meshes`; default: the
+    development set, none where it is absent, said on stderr)."""
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("paths", nargs="*", type=Path)
     parser.add_argument("--scale", type=int, nargs="+", default=[4, 8])
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
-    paths = args.paths or [DATA]
     if not args.paths and not DATA.is_dir():
         print(f"no development data at {DATA}: nothing to measure", file=sys.stderr)
+        return args, []
+    return args, find_meshes(args.paths or [DATA])
+
+
+def main() -> int:
+    args, meshes = planning_arguments(__doc__.splitlines()[0])
+    if not meshes:
         return 0
-    rows = [
-        row for entry in find_meshes(paths) for row in mesh_rows(entry, args.scale, args.device)
-    ]
+    rows = [row for entry in meshes for row in mesh_rows(entry, args.scale, args.device)]
     print(table(rows))
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))

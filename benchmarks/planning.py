@@ -17,7 +17,6 @@ alone on the machine: the figures are wall-clock seconds.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -33,10 +32,8 @@ from geoscaler.methods.repacked import PlanningViews, baked_maps, plan_layout
 from geoscaler.pipeline.downsampling import product_evaluation
 from geoscaler.protocol import PROTOCOL_EVALUATION
 from geoscaler.render.renderer import Renderer
-from geoscaler.report.bench import find_meshes
 from geoscaler.resize.sizes import SizeRule
-
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+from layout_bounds import planning_arguments  # beside this script
 
 
 @dataclass
@@ -120,22 +117,14 @@ def table(rows: list[MeshTiming]) -> str:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("paths", nargs="*", type=Path)
-    parser.add_argument("--scale", type=int, nargs="+", default=[4, 8])
-    parser.add_argument("--device", default="cpu")
-    parser.add_argument("--json", type=Path)
-    args = parser.parse_args()
-    paths = args.paths or [DATA]
-    if not args.paths and not DATA.is_dir():
-        print(f"no development data at {DATA}: nothing to measure", file=sys.stderr)
-        return 0
+    args, meshes = planning_arguments(__doc__.splitlines()[0])
     rows = []
-    for entry in find_meshes(paths):
+    for entry in meshes:
         for scale in args.scale:
             rows.append(time_mesh(entry.path, entry.name, scale, args.device))
             print(f"# {rows[-1]}", file=sys.stderr)
-    print(table(rows))
+    if rows:
+        print(table(rows))
     if args.json:
         args.json.write_text(json.dumps([asdict(r) for r in rows], indent=1))
     return 0
