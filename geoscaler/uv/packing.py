@@ -353,10 +353,11 @@ def pack(
     density tried is rounded down to that grid times a power of two (:func:`aligned_scales`):
     the packed scales are ``sqrt(|det linear|)``, not ``scales`` times the density.
 
-    The search looks first at ``sparsest``, the least density worth a packing (texels per
-    scaled UV unit; None: 1/16 of the density at which the charts would fill every texel), and
-    gives up where even that does not fit: charts that many small ones' paddings crowd out of
-    the atlas fail at every density, each failed packing as costly as one that fits.
+    The search looks no lower than ``sparsest``, the least density worth a packing (texels per
+    scaled UV unit; None: 1/16 of the density at which the charts would fill every texel):
+    first at the middle of its bracket, then, where that does not fit, at ``sparsest``, and it
+    gives up where even that does not fit (charts that many small ones' paddings crowd out of
+    the atlas fail at every density, each failed packing as costly as one that fits).
 
     Atlases of at least :data:`COARSE_MIN_SIZE` are searched at a smaller size first
     (:data:`COARSE_FACTOR`), where a packing costs a third, to :data:`COARSE_RATIO` (``aim``:
