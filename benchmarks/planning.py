@@ -23,6 +23,8 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from layout_bounds import planning_arguments  # beside this script
+
 from geoscaler.io import load_mesh
 from geoscaler.methods import MethodOptions, RunContext
 from geoscaler.methods.direct import DEFAULT_CONFIG
@@ -33,7 +35,6 @@ from geoscaler.pipeline.downsampling import product_evaluation
 from geoscaler.protocol import PROTOCOL_EVALUATION
 from geoscaler.render.renderer import Renderer
 from geoscaler.resize.sizes import SizeRule
-from layout_bounds import planning_arguments  # beside this script
 
 
 @dataclass
