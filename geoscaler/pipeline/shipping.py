@@ -10,7 +10,7 @@ the loader gives it); one the rule does not shrink ships as it came, bytes and a
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Container, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -130,16 +130,29 @@ def relayout_maps(
     for group in atlas.groups:
         faces = np.isin(mesh.face_material, group) & (atlas.chart_of_face >= 0)
         layout = ChartMaps(atlas.uvs[faces], atlas.chart_of_face[faces], atlas.linear, atlas.offset)
-        for index in group:
-            material = mesh.materials[index]
-            for slot, pixels in material.maps.items():
-                if id(pixels) in made or slot_info(material.properties, slot).get("texCoord", 0):
-                    continue
-                kind = texture_class(slot)
-                side, oversample = _relayout_grid(pixels, kind, plan)
-                baked, _ = bake(pixels, kind, layout, side, oversample)
-                made[id(pixels)] = baked, f"re-baked into the new UV layout ({kind})"
+        for slot, pixels in _relaid_maps(mesh, group, made):
+            kind = texture_class(slot)
+            side, oversample = _relayout_grid(pixels, kind, plan)
+            baked, _ = bake(pixels, kind, layout, side, oversample)
+            made[id(pixels)] = baked, f"re-baked into the new UV layout ({kind})"
     return made
+
+
+def _relaid_maps(
+    mesh: TexturedMesh, materials: Iterable[int], done: Container[int] = ()
+) -> Iterator[tuple[str, np.ndarray]]:
+    """``(slot, pixels)`` of every map other than base colour that ``materials`` read on their
+    first UV set, each array once, none whose ``id`` is in ``done``."""
+    seen: set[int] = set()
+    for index in materials:
+        material = mesh.materials[index]
+        for slot, pixels in material.maps.items():
+            if id(pixels) in seen or id(pixels) in done:
+                continue
+            if slot_info(material.properties, slot).get("texCoord", 0):
+                continue
+            seen.add(id(pixels))
+            yield slot, pixels
 
 
 def _relayout_grid(pixels: np.ndarray, kind: str, plan: SizePlan) -> tuple[int, int]:
@@ -183,16 +196,11 @@ def relayout_seconds(mesh: TexturedMesh, plan: SizePlan) -> float:
     """An upper bound on :func:`relayout_maps`'s seconds should every material with a base
     colour move to a new layout: every other map it reads on its first UV set baked at its
     class's size (:data:`~geoscaler.uv.bake.BAKE_SECONDS_PER_SAMPLE`)."""
-    samples, seen = 0, set()
-    for material in mesh.materials:
-        if material.base_color_texture is None:
-            continue
-        for slot, pixels in material.maps.items():
-            if id(pixels) in seen or slot_info(material.properties, slot).get("texCoord", 0):
-                continue
-            seen.add(id(pixels))
-            side, oversample = _relayout_grid(pixels, texture_class(slot), plan)
-            samples += (side * oversample) ** 2
+    textured = [i for i, m in enumerate(mesh.materials) if m.base_color_texture is not None]
+    samples = 0
+    for slot, pixels in _relaid_maps(mesh, textured):
+        side, oversample = _relayout_grid(pixels, texture_class(slot), plan)
+        samples += (side * oversample) ** 2
     return samples * BAKE_SECONDS_PER_SAMPLE
 
 

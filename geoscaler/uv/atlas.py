@@ -513,21 +513,22 @@ def _lay_out(
     aligned = align and cap is not None
     blocks = alignment_for(mesh, mesh.faces[faces], size, samples_per_side) if aligned else 1
     grid, packed, spacing = cap if blocks > 1 else None, None, padding + PACKER_MARGIN
-    weights = atlas.footprint[ids]
-    sparsest = LEAST_GAIN * size / weighted_gain(scales, weights)
+
+    def sparsest(scales: np.ndarray) -> float:  # the density at which k is LEAST_GAIN
+        return LEAST_GAIN * size / weighted_gain(scales, atlas.footprint[ids])
+
     if grid is not None:
         try:  # the spacing leaves room for rounding the offsets
             packed = pack(group, scales, size, spacing + blocks, rotate, budget, grid,
-                          sparsest=sparsest)  # fmt: skip
+                          sparsest=sparsest(scales))  # fmt: skip
         except PackingError:
             blocks, grid = 1, None  # aligned, the charts do not fit: unaligned
     if packed is None:
-        packed = pack(group, scales, size, spacing, rotate, budget, sparsest=sparsest)
+        packed = pack(group, scales, size, spacing, rotate, budget, sparsest=sparsest(scales))
         tpu = packed.texels_per_unit
         if cap is not None and (scales * tpu / size > cap).any():
             scales = np.minimum(scales, cap * size / tpu)
-            sparsest = LEAST_GAIN * size / weighted_gain(scales, weights)
-            packed = pack(group, scales, size, spacing, rotate, budget, sparsest=sparsest)
+            packed = pack(group, scales, size, spacing, rotate, budget, sparsest=sparsest(scales))
     before = copy.deepcopy(atlas)
     offset = packed.offset + np.einsum("cij,cj->ci", packed.linear, shift)
     if grid is not None:
