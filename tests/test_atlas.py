@@ -32,6 +32,7 @@ from geoscaler.uv.atlas import (
     atlas_problems,
     chart_footprint,
     cut_lengths,
+    density_for_gain,
     layout_groups,
     plan_charts,
     planned_scales,
@@ -165,8 +166,47 @@ def test_the_new_layout_passes_every_guard():
 def test_aligned_scales_are_the_grid_times_powers_of_two_at_most_the_grid():
     planned = np.array([5.0, 3.0, 2.0, 1.5, 0.7])
     tpu, size = 128.0, 64
-    aligned = packing.aligned_scales(planned * size / tpu, tpu, size, grid=4.0)
+    aligned = packing.scales_at(planned * size / tpu, tpu, size, cap=4.0, aligned=True)
     np.testing.assert_allclose(aligned * tpu / size, [4.0, 2.0, 2.0, 1.0, 0.5])
+
+
+def test_capped_scales_give_no_chart_more_texels_than_the_original():
+    planned = np.array([5.0, 3.0, 2.0, 0.7])
+    tpu, size = 128.0, 64
+    capped = packing.scales_at(planned * size / tpu, tpu, size, cap=2.5)
+    np.testing.assert_allclose(capped * tpu / size, [2.5, 2.5, 2.0, 0.7])
+    assert packing.scales_at(planned, tpu, size, cap=None) is planned
+
+
+def test_the_filling_density_counts_capped_charts_at_their_cap():
+    area, scales, size = np.array([0.5, 0.5]), np.array([1.0, 2.0]), 10
+    # uncapped: (t / 10)^2 (0.5 + 0.5 * 4) = 1
+    assert packing.filling_density(area, scales, size, None) == pytest.approx(10 / 2.5**0.5)
+    # the second chart capped at 1.2: 0.5 * 1.2^2 + 0.5 (t / 10)^2 = 1
+    assert packing.filling_density(area, scales, size, 1.2) == pytest.approx(10 * 0.56**0.5)
+    # both capped at 1.0 cover half the atlas: the density where the first reaches its cap
+    assert packing.filling_density(area, scales, size, 1.0) == pytest.approx(10.0)
+
+
+def test_an_unaligned_layout_gives_no_chart_more_texels_than_the_original():
+    mesh = cube_mesh()
+    footprints = footprint_ids(mesh, [40, 10, 20, 10, 5, 10])
+    uncapped = repack(mesh, [(SIZE, SIZE)], footprints, 256, align=False)
+    cap = 0.8 * uncapped.planned.max()
+    atlas = repack(mesh, [(SIZE, SIZE)], footprints, 256, [cap], align=False)
+    assert atlas.moved and atlas.alignments == [1]
+    assert atlas.planned.max() == pytest.approx(cap, rel=1e-9)
+    assert atlas_problems(mesh, atlas) == []
+
+
+def test_the_density_for_a_gain_follows_the_caps_and_the_aligned_steps():
+    scales, weights, size = np.ones(2), np.ones(2), 10  # k is the density over 10
+    assert density_for_gain(1.5, scales, weights, size, None) == pytest.approx(15.0)
+    assert density_for_gain(1.5, scales, weights, size, 2.0) == pytest.approx(15.0)
+    # aligned to a cap of 2: k is 1 from density 10 to 20, then 2
+    assert density_for_gain(1.0, scales, weights, size, 2.0, aligned=True) == pytest.approx(10.0)
+    assert density_for_gain(1.5, scales, weights, size, 2.0, aligned=True) == pytest.approx(20.0)
+    assert density_for_gain(3.0, scales, weights, size, 2.0) == np.inf  # capped at 2
 
 
 def test_charts_are_aligned_only_where_the_far_views_minify_the_texture():
@@ -347,7 +387,7 @@ def test_densities_above_the_bisections_answer_are_tried(monkeypatch):
     charts = Charts(np.array([[0, 1, 2], [0, 2, 3]]), uvs, np.zeros(4, np.int64), 1)
     every_texel = 32.0  # size / sqrt(area): the search's upper end
 
-    def place(charts, scales, size, tpu, padding, rotate, boxes, grid=None):
+    def place(charts, scales, size, tpu, padding, rotate, boxes, cap=None, aligned=False):
         fits = tpu < 0.5 * every_texel or 0.55 * every_texel <= tpu < 0.6 * every_texel
         found = packing.Packed(np.eye(2)[None] * tpu / size, np.zeros((1, 2)), tpu, boxes)
         return (found if fits else None), boxes
@@ -367,7 +407,7 @@ def placing(tried: list[float], fits):
     """A stand-in for ``packing._place`` that records each density tried and packs (as a
     plain scale) where ``fits(density)``."""
 
-    def place(charts, scales, size, tpu, padding, rotate, boxes, grid=None):
+    def place(charts, scales, size, tpu, padding, rotate, boxes, cap=None, aligned=False):
         tried.append(tpu)
         found = packing.Packed(np.eye(2)[None] * tpu / size, np.zeros((1, 2)), tpu, boxes)
         return (found if fits(tpu) else None), boxes
@@ -400,7 +440,7 @@ def sized_placing(tried: list[tuple[int, float]], fits):
     """As :func:`placing`, recording ``(atlas size, density)`` and packing where
     ``fits(size, density)``."""
 
-    def place(charts, scales, size, tpu, padding, rotate, boxes, grid=None):
+    def place(charts, scales, size, tpu, padding, rotate, boxes, cap=None, aligned=False):
         tried.append((size, tpu))
         found = packing.Packed(np.eye(2)[None] * tpu / size, np.zeros((1, 2)), tpu, boxes)
         return (found if fits(size, tpu) else None), boxes
@@ -445,6 +485,36 @@ def test_where_the_coarse_answer_misleads_the_full_size_is_searched_from_scratch
     monkeypatch.setattr(packing, "_place", sized_placing(tried, lambda s, t: t < limit[s] * s))
     packed = pack(square_chart(), np.ones(1), 1024, 4, rotate=False)
     assert 0.3 * 1024 / packing.SEARCH_RATIO <= packed.texels_per_unit < 0.3 * 1024
+
+
+def test_where_the_coarse_search_finds_nothing_the_full_size_climbs_from_sparsest(
+    monkeypatch,
+):
+    # the least density worth packing, 300, does not fit the half-size atlas (coarse 150 when
+    # it fits below 0.1 * 512); at full size it fits below 0.33 * 1024 = 338: one look at
+    # 300, then CLIMB steps up to COARSE_SPAN * 300 = 330
+    tried = []
+    limit = {512: 0.1, 1024: 0.33}
+    monkeypatch.setattr(packing, "_place", sized_placing(tried, lambda s, t: t < limit[s] * s))
+    packed = pack(square_chart(), np.ones(1), 1024, 4, rotate=False, sparsest=300.0)
+    coarse = [tpu for size, tpu in tried if size == 512]
+    full = [tpu for size, tpu in tried if size == 1024]
+    assert coarse == pytest.approx([(150.0 * 512) ** 0.5, 150.0])  # then it gives up
+    assert full == pytest.approx([300.0 * 1.03**n for n in range(4)])
+    assert packed.texels_per_unit == pytest.approx(300.0 * 1.03**3)
+    tried.clear()
+    limit[1024] = 0.25  # nor at full size: refused after one look there
+    with pytest.raises(PackingError, match="least density worth packing"):
+        pack(square_chart(), np.ones(1), 1024, 4, rotate=False, sparsest=300.0)
+    assert [tpu for size, tpu in tried if size == 1024] == [300.0]
+
+
+def test_a_least_density_above_filling_every_texel_is_refused_without_a_packing(monkeypatch):
+    tried = []
+    monkeypatch.setattr(packing, "_place", placing(tried, lambda tpu: True))
+    with pytest.raises(PackingError, match="least density worth packing"):
+        pack(square_chart(), np.ones(1), 32, 1, rotate=False, sparsest=33.0)  # fills at 32
+    assert tried == []
 
 
 def test_the_packing_search_stops_at_its_deadline(monkeypatch):
@@ -638,6 +708,51 @@ def test_a_chart_spanning_the_atlas_is_cut_where_the_pieces_pack_denser():
     cut = ribbon.with_uvs(atlas.uvs)
     np.testing.assert_array_equal(chart_labels(cut), atlas.chart_of_face)  # pieces as charts
     np.testing.assert_array_equal(cut.positions[cut.faces], ribbon.positions[ribbon.faces])
+
+
+def test_the_cut_is_searched_no_sparser_than_it_would_be_taken(monkeypatch):
+    ribbon = ribbon_mesh(quads=16)
+    every_face = [torch.arange(len(ribbon.faces))]
+    gains = []
+    plan_charts = atlas_module.plan_charts
+
+    def recording_plan(*args, **kwargs):
+        gains.append(kwargs["terms"].least_gain)
+        return plan_charts(*args, **kwargs)
+
+    monkeypatch.setattr(atlas_module, "plan_charts", recording_plan)
+    atlas = repack(ribbon, [(SIZE, SIZE)], every_face, 256)
+    assert gains == [LEAST_GAIN, pytest.approx(CUT_GAIN * atlas.facts.k_whole)]
+    # where no packing of the pieces is that dense, the cut is refused and says why
+    monkeypatch.setattr(atlas_module, "CUT_GAIN", 100.0)
+    refused = repack(ribbon, [(SIZE, SIZE)], every_face, 256)
+    assert not refused.facts.cut and refused.facts.k_cut is None
+    assert refused.facts.k == refused.facts.k_whole == atlas.facts.k_whole
+    assert refused.facts.cut_skipped.startswith("the pieces' layout was refused: the UV charts")
+
+
+def test_only_the_layout_taken_is_checked_by_the_guards(monkeypatch):
+    ribbon = ribbon_mesh(quads=16)  # cut and taken (above): the whole plan goes unchecked
+    every_face = [torch.arange(len(ribbon.faces))]
+    checked = []
+    group_problems = atlas_module.group_problems
+
+    def recording_problems(mesh, atlas, group):
+        checked.append(atlas.facts.charts if atlas.facts else None)
+        return group_problems(mesh, atlas, group)
+
+    monkeypatch.setattr(atlas_module, "group_problems", recording_problems)
+    atlas = repack(ribbon, [(SIZE, SIZE)], every_face, 256)
+    assert atlas.facts.cut and checked == [atlas.facts.charts]
+
+
+def test_a_group_that_breaks_a_guard_keeps_its_layout_and_says_which(monkeypatch):
+    mesh = cube_mesh()
+    monkeypatch.setattr(atlas_module, "group_problems", lambda *args: ["2 charts overlap"])
+    atlas = repack(mesh, [(SIZE, SIZE)], footprint_ids(mesh, [10] * 6), 256)
+    assert not atlas.moved and atlas.groups == []
+    assert atlas.kept == {"cube": "the new UV layout broke a guard: 2 charts overlap"}
+    np.testing.assert_array_equal(atlas.uvs, mesh.corner_uvs())
 
 
 def test_a_long_chart_is_cut_to_half_the_atlas_where_it_would_fill_every_texel():

@@ -29,6 +29,7 @@ import copy
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import numpy as np
 import torch
@@ -48,6 +49,7 @@ from geoscaler.uv.packing import (
     overlapping_texels,
     pack,
     padding_violations,
+    scales_at,
     signed_areas,
 )
 from geoscaler.uv.uvmaps import (
@@ -95,6 +97,27 @@ CUT_GAIN = 1.1
 
 class AtlasError(PackingError):
     """A new layout that breaks a guard (overlap, flip, scale, padding) or does not fit."""
+
+
+@dataclass(frozen=True)
+class PlanTerms:
+    """What a plan of one group's charts must meet (:func:`plan_charts`).
+
+    Attributes:
+        align: charts aligned to the original's mip blocks where the far views minify the
+            texture (:func:`alignment_for`); False: never.
+        least_gain: the least ``k`` worth a packing (the search looks no sparser).
+        fall_back: where aligned charts do not fit, pack them unaligned (False: the group
+            keeps its layout).
+        checked: each packed group's guards checked (:func:`group_problems`) as it is laid
+            out, a group that breaks one keeping its layout; False: the caller checks the
+            layout it takes.
+    """
+
+    align: bool = True
+    least_gain: float = LEAST_GAIN
+    fall_back: bool = True
+    checked: bool = True
 
 
 @dataclass
@@ -315,7 +338,7 @@ def padding_for(mesh: TexturedMesh, faces: np.ndarray, size: tuple[int, int], sa
 
 def alignment_for(mesh: TexturedMesh, faces: np.ndarray, size: int, samples: int) -> int:
     """Texels every chart's offset is a multiple of (1: none), its scale then a power of two
-    times the original's texels per output texel (:func:`~geoscaler.uv.packing.aligned_scales`):
+    times the original's texels per output texel (:func:`~geoscaler.uv.packing.scales_at`):
     :data:`ALIGNMENT` where the far views minify the new texture (a surface facing the camera
     at the far view's farthest depth reads level 0 or coarser on 90 % of the faces), so that
     its mip blocks are the original's, which the far views' references read."""
@@ -341,15 +364,16 @@ def group_charts(
     local index along u), which the charts' UVs include."""
     faces = np.flatnonzero(np.isin(mesh.face_material, materials))
     ids = uv_corner_ids(mesh)[mesh.faces[faces]]  # (G, 3)
-    keys = np.stack([ids, np.broadcast_to(charts[faces, None], ids.shape)], axis=2)
-    used, corner_faces = np.unique(keys.reshape(-1, 2), axis=0, return_inverse=True)
+    count = int(charts.max(initial=0)) + 1
+    keys, corner_faces = np.unique(ids * count + charts[faces, None], return_inverse=True)
     corner_faces = corner_faces.reshape(-1, 3)
-    corner_uvs = np.zeros((len(used), 2))
+    used_ids = keys // count  # the UV-space corner of each corner
+    corner_uvs = np.zeros((len(keys), 2))
     corner_uvs[corner_faces.reshape(-1)] = mesh.uvs[mesh.faces[faces]].reshape(-1, 2)
     global_charts, local = np.unique(charts[faces], return_inverse=True)
-    corner_chart = np.zeros(len(used), np.int64)
+    corner_chart = np.zeros(len(keys), np.int64)
     corner_chart[corner_faces] = local.reshape(-1, 1)
-    on_cut = np.bincount(used[:, 0])[used[:, 0]] > 1  # a corner some other chart shares
+    on_cut = np.bincount(used_ids)[used_ids] > 1  # a corner some other chart shares
     shift = np.zeros((len(global_charts), 2))
     cut = np.unique(corner_chart[on_cut])
     shift[cut, 0] = (cut + 1) * SEPARATION
@@ -375,7 +399,8 @@ def repack(
     fills every texel (:func:`cut_lengths`), those charts are cut
     (:func:`geoscaler.uv.uvmaps.cut_charts`) into pieces at most that long and packed again,
     and the cut layout is taken where its ``k`` is at least :data:`CUT_GAIN` times the whole
-    charts'.
+    charts' (its packing searches no sparser: a cut whose groups do not all pack that densely
+    is refused, and said so in ``cut_skipped``).
     The cut is not planned where, at the whole plan's cost, it would not fit ``budget``.
 
     Args:
@@ -392,12 +417,17 @@ def repack(
         align: False: charts are never aligned (the other layout a race weighs).
 
     Returns:
-        The :class:`Atlas`, each packed group's guards checked (:func:`group_problems`).
+        The :class:`Atlas`, each packed group's guards checked (:func:`group_problems`): both
+        plans are laid out unchecked and only the one taken is checked; where a group of the
+        whole charts' plan breaks a guard, that plan is made again checking each group as it
+        is laid out, and such a group keeps its layout.
     """
     charts = chart_labels(mesh)
     budget = budget or unlimited()
     started = budget.now()
-    whole = plan_charts(mesh, sizes, charts, tri_ids, samples_per_side, detail, budget, align)
+    plan = partial(plan_charts, mesh, sizes, tri_ids=tri_ids, samples_per_side=samples_per_side,
+                   detail=detail, budget=budget)  # fmt: skip
+    whole = plan(charts, terms=PlanTerms(align, checked=False))
     longest = cut_lengths(mesh, whole, charts)
     charts_cut = int(np.isfinite(longest).sum())
     atlas, cut_skipped, k_cut = whole, None, None
@@ -406,15 +436,30 @@ def repack(
         cut_skipped = "the time budget left no time to plan the cut"
     elif charts_cut:
         pieces = cut_charts(mesh, charts, longest)
-        cut = plan_charts(mesh, sizes, pieces, tri_ids, samples_per_side, detail, budget, align)
-        k_cut = cut.facts.k
-        if cut.groups == whole.groups and cut.facts.k >= CUT_GAIN * whole.facts.k:
-            atlas = cut  # (a group the cut plan could not pack would make k incomparable)
+        least = max(LEAST_GAIN, CUT_GAIN * whole.facts.k)  # no sparser cut would be taken
+        cut = plan(pieces, terms=PlanTerms(whole.aligned, least, fall_back=False, checked=False))
+        cut_skipped = _cut_refusal(mesh, whole, cut)
+        k_cut = None if cut_skipped else cut.facts.k
+        if k_cut is not None and k_cut >= CUT_GAIN * whole.facts.k:
+            atlas = cut
+    if atlas is whole and atlas_problems(mesh, whole):  # planned again, checked group by
+        atlas = whole = plan(charts, terms=PlanTerms(align))  # group: those that break a
+        # guard keep their layout, with the reason
     added = len(mesh.with_uvs(atlas.uvs).uvs) - len(mesh.uvs)
     atlas.facts = replace(atlas.facts, charts_cut=charts_cut, k_whole=whole.facts.k,
                           cut=atlas is not whole, vertices_added=added,
                           cut_skipped=cut_skipped, k_cut=k_cut)  # fmt: skip
     return atlas
+
+
+def _cut_refusal(mesh: TexturedMesh, whole: Atlas, cut: Atlas) -> str | None:
+    """Why the ``cut`` layout cannot be taken over ``whole`` (None: it can, where dense
+    enough): a group it could not pack (its ``k`` would not compare), or, where it is dense
+    enough to be taken, a guard it breaks (:func:`atlas_problems`)."""
+    refused = sorted({cut.kept[name] for name in cut.kept.keys() - whole.kept.keys()})
+    if not refused and cut.facts.k >= CUT_GAIN * whole.facts.k:
+        refused = atlas_problems(mesh, cut)
+    return "the pieces' layout was refused: " + "; ".join(refused) if refused else None
 
 
 def cut_lengths(mesh: TexturedMesh, atlas: Atlas, charts: np.ndarray) -> np.ndarray:
@@ -449,10 +494,11 @@ def plan_charts(
     samples_per_side: int,
     detail: Sequence[float | None] | None,
     budget: Budget | None = None,
-    align: bool = True,
+    terms: PlanTerms = PlanTerms(),
 ) -> Atlas:
     """The layout of ``charts`` (``(F,)`` labels, each chart moved whole) as :func:`repack`
-    plans it, within ``budget`` (:func:`~geoscaler.uv.packing.pack`)."""
+    plans it on ``terms``, within ``budget`` (:func:`~geoscaler.uv.packing.pack`); a group
+    that does not fit them keeps its layout, with the reason."""
     groups, kept = layout_groups(mesh, sizes, charts)
     count = int(charts.max()) + 1 if len(charts) else 0
     chart_area = np.bincount(charts, np.abs(uv_areas(mesh.uvs, mesh.faces)), minlength=count)
@@ -480,7 +526,7 @@ def plan_charts(
                 samples_per_side,
                 detail,
                 budget,
-                align,
+                terms,
             )
         except PackingError as error:  # AtlasError included: that group keeps its layout
             kept.update({m: str(error) for m in materials})
@@ -498,38 +544,35 @@ def _lay_out(
     samples_per_side: int,
     detail: Sequence[float | None] | None,
     budget: Budget | None,
-    align: bool = True,
+    terms: PlanTerms = PlanTerms(),
 ) -> None:
-    """Pack the charts of ``materials`` into ``atlas`` (in place) within ``budget``, aligned
-    (:func:`alignment_for`, unless ``align`` is False) where they fit so, or leave ``atlas`` as
-    it was and raise :class:`~geoscaler.uv.packing.PackingError` when they do not fit, break a
-    guard or found no packing in time."""
+    """Pack the charts of ``materials`` into ``atlas`` (in place) within ``budget`` on
+    ``terms`` (:class:`PlanTerms`); or leave ``atlas`` as it was and raise
+    :class:`~geoscaler.uv.packing.PackingError` when they do not fit, break a guard (where
+    checked) or found no packing in time."""
     faces, group, ids, shift = group_charts(mesh, materials, charts)
     size = atlas.sizes[materials[0]][0]
     padding = padding_for(mesh, mesh.faces[faces], (size, size), samples_per_side)
     rotate = not has_normal_map(mesh, materials)
     scales = planned_scales(atlas.footprint[ids], chart_area[ids])
     cap = None if detail is None else detail[materials[0]]
-    aligned = align and cap is not None
+    aligned = terms.align and cap is not None
     blocks = alignment_for(mesh, mesh.faces[faces], size, samples_per_side) if aligned else 1
     grid, packed, spacing = cap if blocks > 1 else None, None, padding + PACKER_MARGIN
-
-    def sparsest(scales: np.ndarray) -> float:  # the density at which k is LEAST_GAIN
-        return LEAST_GAIN * size / weighted_gain(scales, atlas.footprint[ids])
-
+    weights = atlas.footprint[ids]
     if grid is not None:
+        least = density_for_gain(terms.least_gain, scales, weights, size, cap, aligned=True)
         try:  # the spacing leaves room for rounding the offsets
-            packed = pack(group, scales, size, spacing + blocks, rotate, budget, grid,
-                          sparsest=sparsest(scales))  # fmt: skip
+            packed = pack(group, scales, size, spacing + blocks, rotate, budget, cap, True,
+                          sparsest=least)  # fmt: skip
         except PackingError:
+            if not terms.fall_back:
+                raise
             blocks, grid = 1, None  # aligned, the charts do not fit: unaligned
     if packed is None:
-        packed = pack(group, scales, size, spacing, rotate, budget, sparsest=sparsest(scales))
-        tpu = packed.texels_per_unit
-        if cap is not None and (scales * tpu / size > cap).any():
-            scales = np.minimum(scales, cap * size / tpu)
-            packed = pack(group, scales, size, spacing, rotate, budget, sparsest=sparsest(scales))
-    before = copy.deepcopy(atlas)
+        least = density_for_gain(terms.least_gain, scales, weights, size, cap)
+        packed = pack(group, scales, size, spacing, rotate, budget, cap, sparsest=least)
+    before = copy.deepcopy(atlas) if terms.checked else atlas
     offset = packed.offset + np.einsum("cij,cj->ci", packed.linear, shift)
     if grid is not None:
         offset = np.round(offset * size / blocks) * blocks / size
@@ -542,7 +585,7 @@ def _lay_out(
     atlas.groups.append(materials)
     atlas.paddings.append(padding)
     atlas.alignments.append(blocks)
-    problems = group_problems(mesh, atlas, len(atlas.groups) - 1)
+    problems = group_problems(mesh, atlas, len(atlas.groups) - 1) if terms.checked else []
     if problems:
         atlas.__dict__.update(before.__dict__)
         raise AtlasError("the new UV layout broke a guard: " + "; ".join(problems))
@@ -562,6 +605,35 @@ def weighted_gain(scales: np.ndarray, weights: np.ndarray) -> float:
     (1.0 where the weights sum to nothing)."""
     total = weights.sum()
     return float(np.exp((weights * np.log(scales)).sum() / total)) if total > 0 else 1.0
+
+
+def density_for_gain(
+    gain: float,
+    scales: np.ndarray,
+    weights: np.ndarray,
+    size: int,
+    cap: float | None,
+    aligned: bool = False,
+) -> float:
+    """The least density (atlas texels per scaled UV unit) at which charts of ``(C,)``
+    ``scales``, as packed there (:func:`~geoscaler.uv.packing.scales_at` with ``cap`` and
+    ``aligned``), reach ``gain`` in ``k`` (:func:`weighted_gain` by ``(C,)`` ``weights``);
+    ``inf`` where the caps keep them below it at any density. ``k`` rises with the density,
+    in steps where aligned."""
+
+    def gain_at(tpu: float) -> float:
+        return weighted_gain(scales_at(scales, tpu, size, cap, aligned) * tpu / size, weights)
+
+    low = gain * size / weighted_gain(scales, weights)  # without caps: caps only lower k
+    if cap is None:
+        return low
+    high = max(low, float((cap * size / np.maximum(scales, 1e-30)).max()))  # every chart capped
+    if gain_at(high) < gain:
+        return math.inf
+    while high > low * (1 + 1e-9):  # bisection: gain_at(low) < gain <= gain_at(high)
+        middle = math.sqrt(low * high)
+        low, high = (low, middle) if gain_at(middle) >= gain else (middle, high)
+    return high
 
 
 def layout_facts(

@@ -285,13 +285,49 @@ def _split(proxies, new: np.ndarray, count: int, size: int) -> np.ndarray:
     return _fit(old, chart, new, count)[2] > 0.01 / size
 
 
-def aligned_scales(scales: np.ndarray, tpu: float, size: int, grid: float) -> np.ndarray:
-    """``(C,)`` ``scales`` at density ``tpu`` rounded down so that each chart's planned scale
-    is ``grid`` (the original's texels per texel of the output) times a power of two, at most
-    ``grid`` itself: each new texel then covers a power-of-two block of original texels."""
+def scales_at(
+    scales: np.ndarray, tpu: float, size: int, cap: float | None, aligned: bool = False
+) -> np.ndarray:
+    """``(C,)`` ``scales`` as packed at density ``tpu``: each chart's planned scale
+    (``scales * tpu / size``) at most ``cap`` (the original's texels per texel of the output:
+    no chart gets more texels than the original has; None: no cap) and, where ``aligned``,
+    rounded down to ``cap`` times a power of two, so that each new texel covers a power-of-two
+    block of original texels."""
+    if cap is None:
+        return scales
     planned = scales * tpu / size
-    steps = np.floor(np.log2(np.maximum(planned, 1e-30) / grid) + 1e-9)
-    return grid * 2.0 ** np.minimum(steps, 0.0) * size / tpu
+    if aligned:
+        steps = np.floor(np.log2(np.maximum(planned, 1e-30) / cap) + 1e-9)
+        return cap * 2.0 ** np.minimum(steps, 0.0) * size / tpu
+    return np.minimum(planned, cap) * size / tpu
+
+
+def filling_density(
+    chart_area: np.ndarray,
+    scales: np.ndarray,
+    size: int,
+    cap: float | None,
+    aligned: bool = False,
+) -> float:
+    """Texels per scaled UV unit at which the charts, of ``(C,)`` UV areas ``chart_area``
+    scaled by ``(C,)`` ``scales`` as packed there (:func:`scales_at` with ``cap`` and
+    ``aligned``), would cover every texel of a ``size x size`` atlas; where capped charts never
+    do, the density at which the last one reaches its cap (no denser packing differs)."""
+    uncapped = size / math.sqrt(max(float((scales**2 * chart_area).sum()), 1e-30))
+    if cap is None:
+        return uncapped
+
+    def covered(tpu: float) -> float:  # share of the atlas: rises with the density
+        packed = scales_at(scales, tpu, size, cap, aligned) * tpu / size
+        return float((packed**2 * chart_area).sum())
+
+    low, high = uncapped, max(uncapped, float((cap * size / np.maximum(scales, 1e-30)).max()))
+    if covered(high) <= 1.0:
+        return high
+    while high > low * (1 + 1e-9):  # bisection: covered(low) <= 1 < covered(high)
+        middle = math.sqrt(low * high)
+        low, high = (middle, high) if covered(middle) <= 1.0 else (low, middle)
+    return high
 
 
 def _place(
@@ -302,13 +338,13 @@ def _place(
     padding: int,
     rotate: bool,
     boxes: np.ndarray,
-    grid: float | None = None,
+    cap: float | None = None,
+    aligned: bool = False,
 ) -> tuple[Packed | None, np.ndarray]:
     """One packing at density ``tpu``: the charts' similarities, or None; and the boxes used
-    (charts xatlas split are boxed and packed again). With a ``grid``, the scales are
-    :func:`aligned_scales` at ``tpu``."""
-    if grid is not None:
-        scales = aligned_scales(scales, tpu, size, grid)
+    (charts xatlas split are boxed and packed again). The scales are :func:`scales_at`
+    ``tpu``."""
+    scales = scales_at(scales, tpu, size, cap, aligned)
     for _ in range(4):
         proxies = _proxies(charts, scales, tpu, boxes)
         new = _pack_once(proxies, scales, size, tpu, padding, rotate)
@@ -340,7 +376,8 @@ def pack(
     padding: int,
     rotate: bool,
     budget: Budget | None = None,
-    grid: float | None = None,
+    cap: float | None = None,
+    aligned: bool = False,
     aim: bool = False,
     sparsest: float | None = None,
 ) -> Packed:
@@ -349,9 +386,10 @@ def pack(
     90 degrees or transpose only where ``rotate``. Deterministic: the same input gives the
     same output, unless the search is stopped by ``budget`` (None: never): past its end no
     further density is tried, and the densest found so far is returned.
-    With a ``grid`` (the original's texels per output texel), each chart's scale at the
-    density tried is rounded down to that grid times a power of two (:func:`aligned_scales`):
-    the packed scales are ``sqrt(|det linear|)``, not ``scales`` times the density.
+    With a ``cap`` (the original's texels per output texel), each chart's scale at the
+    density tried is at most the cap and, ``aligned``, rounded down to the cap times a power
+    of two (:func:`scales_at`): the packed scales are ``sqrt(|det linear|)``, not ``scales``
+    times the density.
 
     The search looks no lower than ``sparsest``, the least density worth a packing (texels per
     scaled UV unit; None: 1/16 of the density at which the charts would fill every texel):
@@ -365,6 +403,8 @@ def pack(
     tried until one fits, and where the first does, the search climbs above it by
     :data:`CLIMB` up to :data:`COARSE_SPAN`. Where nothing near the coarse answer fits, the
     full size is searched from scratch: a bisection from ``sparsest``, then :data:`PROBES`.
+    Where the coarse search finds nothing even at ``sparsest``, the full size looks there and
+    climbs from it (its finer texels fit a few percent more, rarely more than that).
 
     Raises:
         PackingError: not even a sparse packing holds the charts at their planned scales, or
@@ -372,34 +412,35 @@ def pack(
     """
     if 2 * padding >= size:
         raise PackingError(f"a padding of {padding} texels leaves no room in {size}x{size}")
-    area = float(
-        np.abs(
-            signed_areas(charts.corner_uvs * scales[charts.corner_chart, None], charts.corner_faces)
-        ).sum()
+    areas = np.abs(signed_areas(charts.corner_uvs, charts.corner_faces))
+    chart_area = np.bincount(charts.face_chart(), areas, minlength=charts.count)
+    every_texel = filling_density(chart_area, scales, size, cap, aligned)
+    refusal = f"the UV charts do not fit one {size}x{size} atlas at their planned scales" + (
+        "" if sparsest is None else ", even at the least density worth packing"
     )
-    every_texel = size / math.sqrt(max(area, 1e-30))
-    least = every_texel / 16 if sparsest is None else min(sparsest, every_texel)
-    search = _Search(charts, scales, size, padding, rotate, budget, grid)
+    late = "the time budget left no time to pack the UV charts"
+    if sparsest is not None and sparsest > every_texel:
+        raise PackingError(refusal)  # charts that dense would cover more than every texel
+    least = every_texel / 16 if sparsest is None else sparsest
+    search = _Search(charts, scales, size, padding, rotate, budget, cap, aligned)
     if size >= COARSE_MIN_SIZE:
         coarse = size // COARSE_FACTOR
         factor = size / coarse
         padded = math.ceil(padding / factor)
         try:
-            rough = pack(charts, scales, coarse, padded, rotate, budget, grid, True, least / factor)
-        except PackingError:
-            rough = None
-        if rough is not None:
-            best = search.refine(rough.texels_per_unit * factor)
-            if best is not None:
-                return best
+            rough = pack(charts, scales, coarse, padded, rotate, budget, cap, aligned, True,
+                         least / factor)  # fmt: skip
+        except PackingError:  # not even at the least density: the full size fits little more
+            best = None if search.late() else search.place(least)
+            if best is None:
+                raise PackingError(late if search.late() else refusal) from None
+            return search.climb(best, least * COARSE_SPAN)
+        best = search.refine(rough.texels_per_unit * factor)
+        if best is not None:
+            return best
     best = search.start(least, every_texel)
-    if best is None and search.late():
-        raise PackingError("the time budget left no time to pack the UV charts")
     if best is None:
-        raise PackingError(
-            f"the UV charts do not fit one {size}x{size} atlas at their planned scales"
-            + ("" if sparsest is None else ", even at the least density worth packing")
-        )
+        raise PackingError(late if search.late() else refusal)
     ratio = COARSE_RATIO if aim else SEARCH_RATIO
     best = search.bisect(best.texels_per_unit, every_texel, ratio, best)
     return best if aim else search.probe(best)
@@ -415,7 +456,8 @@ class _Search:
     padding: int
     rotate: bool
     budget: Budget | None
-    grid: float | None
+    cap: float | None
+    aligned: bool
 
     def __post_init__(self) -> None:
         self.boxes = folded_charts(self.charts)
@@ -427,7 +469,7 @@ class _Search:
         """The packing at density ``tpu``, or None (charts xatlas split are boxed from then
         on)."""
         packed, self.boxes = _place(self.charts, self.scales, self.size, tpu, self.padding,
-                                    self.rotate, self.boxes, self.grid)  # fmt: skip
+                                    self.rotate, self.boxes, self.cap, self.aligned)  # fmt: skip
         return packed
 
     def refine(self, guess: float) -> Packed | None:
@@ -438,16 +480,19 @@ class _Search:
             if self.late():
                 return None
             best = self.place(guess * step)
-            if best is not None and index > 0:
-                return best
             if best is not None:
-                while not self.late() and best.texels_per_unit * CLIMB <= guess * COARSE_SPAN:
-                    denser = self.place(best.texels_per_unit * CLIMB)
-                    if denser is None:
-                        break
-                    best = denser
-                return best
+                return best if index > 0 else self.climb(best, guess * COARSE_SPAN)
         return None
+
+    def climb(self, best: Packed, ceiling: float) -> Packed:
+        """The densest packing of a climb above ``best`` in :data:`CLIMB` steps while they
+        fit, up to density ``ceiling``."""
+        while not self.late() and best.texels_per_unit * CLIMB <= ceiling:
+            denser = self.place(best.texels_per_unit * CLIMB)
+            if denser is None:
+                break
+            best = denser
+        return best
 
     def start(self, least: float, most: float) -> Packed | None:
         """A first packing for the bisection: at the geometric middle of densities ``least``
