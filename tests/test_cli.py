@@ -1,6 +1,8 @@
 """The command line: info, render and their errors (exit status 2, no traceback)."""
 
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -187,3 +189,19 @@ def test_comparisons_measure_the_own_layout_unless_asked(argv, uv):
     args = build_parser().parse_args(argv)
     args.optimize = None
     assert comparison_settings(args)[3].settings.get("uv") == uv
+
+
+def test_a_job_in_its_own_layout_imports_no_layout_planning(small_glb, tmp_path):
+    """scipy.ndimage (0.2 s of imports) serves the packing's guards, the bake and the demo's
+    asset: a job that keeps its layout never imports it, nor the demo's scipy.spatial."""
+    probe = (
+        "import sys\n"
+        "from geoscaler.cli import main\n"
+        "status = main(sys.argv[1:])\n"
+        "print(status, 'scipy.ndimage' in sys.modules, 'scipy.spatial' in sys.modules)\n"
+    )
+    out = tmp_path / "out.glb"
+    job = [small_glb, "--scale", "4", "--uv", "keep", "--time-budget", "5", "-o", out]
+    command = [sys.executable, "-c", probe, "downsample", *map(str, job)]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert done.stdout.splitlines()[-1] == "0 False False", done.stderr

@@ -13,7 +13,6 @@ from geoscaler.optim.events import Controller
 from geoscaler.pipeline.arguments import method_options
 from geoscaler.pipeline.downsampling import Job, prepare, product_evaluation, run_job
 from geoscaler.pipeline.job import Downsampled
-from geoscaler.procedural import scan_mesh
 from geoscaler.protocol import GAIN_REFERENCE, PROTOCOL_EVALUATION, Evaluation
 from geoscaler.render.renderer import Renderer
 from geoscaler.report.console import DownsampleProgress, stop_on_interrupt
@@ -95,6 +94,8 @@ def demo(
     if mesh_path.exists():
         say(f"using the demo asset {mesh_path}")
     else:
+        from geoscaler.procedural import scan_mesh  # scipy.ndimage and .spatial: the demo's alone
+
         say(f"building the demo asset into {mesh_path}")
         save_mesh(scan_mesh(), mesh_path)
     stem = f"{mesh_path.stem}_x{DEMO_SCALE}"

@@ -21,7 +21,6 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from PIL import Image
-from scipy.ndimage import distance_transform_edt
 
 from geoscaler.color import linear_to_srgb, srgb_to_linear
 from geoscaler.render.encoded import Decoding, EncodedMipTexture, decode_codes
@@ -168,7 +167,9 @@ class ChartMaps:
 def _nearest_chart(layout: ChartMaps, grid: int) -> tuple[torch.Tensor, torch.Tensor]:
     """``((grid, grid) int64 chart of each sample, -1 where no face covers any; (grid, grid)
     bool samples a face covers)``: a sample no face covers takes its nearest covered
-    sample's chart."""
+    sample's chart. (scipy.ndimage is imported here: a job imports it only where it bakes.)"""
+    from scipy.ndimage import distance_transform_edt
+
     corners = torch.from_numpy(np.asarray(layout.corners, np.float64)).reshape(-1, 2)
     depth = torch.zeros(len(corners), 1)
     clip = torch.cat([corners * 2 - 1, depth, torch.ones_like(depth)], dim=1)

@@ -34,7 +34,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import xatlas
-from scipy.ndimage import maximum_filter, minimum_filter
 
 from geoscaler.clock import WALL_CLOCK, Budget, Clock
 from geoscaler.errors import GeoscalerError
@@ -616,7 +615,10 @@ def padding_violations(texels: np.ndarray, labels: np.ndarray, size: int, paddin
     :func:`overlapping_texels`' and count for neither): 0 when at least ``padding - 1`` empty
     texels separate every two charts. Per texel, the least and the largest label within its
     window (separable minimum and maximum filters) differ from its own where a neighbour is
-    another chart's."""
+    another chart's. (scipy.ndimage is imported here: a job imports it only where it plans a
+    layout.)"""
+    from scipy.ndimage import maximum_filter, minimum_filter
+
     grid = np.full(size * size, -1, np.int64)
     grid[texels] = labels
     grid[overlapping_texels(texels, labels)] = -1
