@@ -592,8 +592,7 @@ def test_no_layout_is_planned_where_the_time_left_cannot_hold_its_plan_and_bake(
     clock = ManualClock(100.0)
     renderer = Renderer(cube, "cpu", QUICK)
     validation = Validation(validation_view_sets(renderer), [(64, 64)], clock=clock)
-    validation.costs.view_cost.add(1.0)  # a validation view took 1 s: so does the bake
-    baking = bake_seconds([(64, 64)], renderer.reference_maps(), renderer, 1.0)
+    baking = bake_seconds([(64, 64)], renderer.reference_maps())
     config = OptimizeConfig(pool_views=8)
     rule = SizeRule(scale=4)
 
@@ -611,24 +610,22 @@ def test_no_layout_is_planned_where_the_time_left_cannot_hold_its_plan_and_bake(
     assert count == 1 and facts.skipped is None and facts.planned is not None
 
 
-def test_the_bake_is_priced_at_a_validation_views_cost_per_sample():
-    from types import SimpleNamespace
-
+def test_the_bake_is_priced_per_sample_of_its_grids():
     from geoscaler.methods.repacked import bake_seconds
+    from geoscaler.uv.bake import BAKE_SECONDS_PER_SAMPLE
 
-    renderer = SimpleNamespace(image_size=128, supersample=2)  # 256^2 samples a view
     image = np.zeros((256, 256, 3), np.uint8)
-    # 64^2 texels at 4 samples a side (the original's density): one view's samples
-    assert bake_seconds([(64, 64)], [image], renderer, 0.5) == pytest.approx(0.5)
+    # 64^2 texels at 4 samples a side (the original's density)
+    assert bake_seconds([(64, 64)], [image]) == pytest.approx(256**2 * BAKE_SECONDS_PER_SAMPLE)
     # one image shown by two materials is baked once; an untextured material not at all
-    assert bake_seconds([(64, 64), (64, 64), None], [image, image, None], renderer, 0.5) == (
-        pytest.approx(0.5)
+    assert bake_seconds([(64, 64), (64, 64), None], [image, image, None]) == (
+        pytest.approx(256**2 * BAKE_SECONDS_PER_SAMPLE)
     )
-    # 128^2 texels: 2 samples a side (the original's density), a view's samples again
-    assert bake_seconds([(128, 128)], [image], renderer, 0.5) == pytest.approx(0.5)
-    # ... or 4 (the most) from a 1024^2 original: 4 times a view's samples
+    # 128^2 texels: 2 samples a side (the original's density)
+    assert bake_seconds([(128, 128)], [image]) == pytest.approx(256**2 * BAKE_SECONDS_PER_SAMPLE)
+    # ... or 4 (the most) from a 1024^2 original: 512^2 samples
     large = np.zeros((1024, 1024, 3), np.uint8)
-    assert bake_seconds([(128, 128)], [large], renderer, 0.5) == pytest.approx(2.0)
+    assert bake_seconds([(128, 128)], [large]) == pytest.approx(512**2 * BAKE_SECONDS_PER_SAMPLE)
 
 
 def test_the_job_scores_repack_beside_direct_on_the_same_views(cube):

@@ -60,7 +60,7 @@ from geoscaler.render.renderer import Renderer
 from geoscaler.render.views import ViewCache, training_views
 from geoscaler.resize.sizes import COLOR, SizeRule
 from geoscaler.uv.atlas import Atlas, repack
-from geoscaler.uv.bake import ChartMaps, bake
+from geoscaler.uv.bake import BAKE_SECONDS_PER_SAMPLE, ChartMaps, bake
 from geoscaler.uv.uvmodes import check_uv_mode
 
 MAX_OVERSAMPLE = 4
@@ -232,15 +232,16 @@ def oversampling(reference: np.ndarray, size: int) -> int:
     return int(np.clip(reference.shape[0] // size, 1, MAX_OVERSAMPLE))
 
 
-def bake_seconds(
-    sizes: list, references: list[np.ndarray | None], renderer: Renderer, view_seconds: float
-) -> float:
-    """An estimate of :func:`baked_maps`'s seconds at most (each base-colour image baked
-    once): its samples at the cost per sample of a validation view (``view_seconds``, measured
-    on this machine as it is now), whose render samples the original as the bake does."""
+def bake_seconds(sizes: list, references: list[np.ndarray | None]) -> float:
+    """An upper bound on :func:`baked_maps`'s seconds on an idle machine (each base-colour
+    image baked once): every sample of its grids at
+    :data:`~geoscaler.uv.bake.BAKE_SECONDS_PER_SAMPLE`, the price of the export's re-bake of
+    the other maps. (A validation view's cost per sample of its frame priced a bake at 0.4 to
+    0.8 times its seconds, per sample that sees the mesh at 1.2 to 2.7 times: a view's cost
+    follows neither.)"""
     images = {id(r): (r, s[0]) for r, s in zip(references, sizes, strict=True) if r is not None}
     samples = sum((size * oversampling(r, size)) ** 2 for r, size in images.values())
-    return view_seconds * samples / (renderer.image_size * renderer.supersample) ** 2
+    return samples * BAKE_SECONDS_PER_SAMPLE
 
 
 @dataclass
@@ -480,8 +481,8 @@ def _timely_layouts(
     """The new layouts (:func:`offered_layouts`), planned and baked by :data:`PREPARING_SHARE`
     of the time from now to ``end`` (None: no budget). Each bake is priced first
     (:func:`bake_seconds`), so each plan's deadline leaves the bakes their time."""
-    planned_by, baking = _planning_deadline(mesh, rule, renderer, validation, end)
     clock = validation.clock
+    planned_by, baking = _planning_deadline(mesh, rule, renderer, clock, end)
     return offered_layouts(mesh, rule, renderer, config, facts, clock, planned_by, baking)
 
 
@@ -538,18 +539,16 @@ def _planning_deadline(
     mesh: TexturedMesh,
     rule: SizeRule,
     renderer: Renderer,
-    validation: Validation,
+    clock: Clock,
     end: float | None,
 ) -> tuple[float | None, float]:
-    """``(instant the first plan must be done by, seconds a bake takes)``: the bake priced at
-    a validation view's cost (None and 0 without a budget)."""
+    """``(instant the first plan must be done by, seconds a bake takes)`` (None and 0 without
+    a budget; the bake priced by :func:`bake_seconds`)."""
     if end is None:
         return None, 0.0
-    if not validation.view_cost:
-        validation.cache_next()  # prices the bake (the loop would cache it first)
     sizes = output_sizes_for(mesh, rule, renderer)
-    baking = bake_seconds(sizes, renderer.reference_maps(), renderer, validation.view_cost)
-    now = validation.clock.now()
+    baking = bake_seconds(sizes, renderer.reference_maps())
+    now = clock.now()
     return now + PREPARING_SHARE * (end - now) - baking, baking
 
 
