@@ -113,6 +113,63 @@ def test_what_returns_is_never_below_the_best_baseline_on_any_set(mesh):
     assert facts.validation_scores == facts.baseline_scores["lanczos"]
 
 
+def test_training_starts_from_the_other_start_that_validates_best(mesh):
+    lanczos, flat = every_map_by(mesh, PLAN, "lanczos"), flat_start(mesh)
+    settings = LitSettings(steps=0, validation_views=2, pool_views=2, views_per_step=1)
+    others = {"flat": flat_start(mesh), "lanczos": lanczos}
+    best, facts = optimize_lit(
+        mesh, flat, {}, unlimited(), settings, "cpu", evaluation=QUICK, other_starts=others
+    )
+    assert facts.start_maps == "lanczos" and facts.shipped == "start" and best is lanczos
+    assert facts.validation_scores == facts.baseline_scores["start"]
+    # an other start below the start is scored and left
+    best, facts = optimize_lit(
+        mesh, lanczos, {}, unlimited(), settings, "cpu", evaluation=QUICK,
+        other_starts={"flat": flat},
+    )  # fmt: skip
+    assert facts.start_maps is None and best is lanczos
+    # one that ranks the same (here the same maps) leaves the start as it is
+    best, facts = optimize_lit(
+        mesh, lanczos, {}, unlimited(), settings, "cpu", evaluation=QUICK,
+        other_starts={"same": every_map_by(mesh, PLAN, "lanczos")},
+    )  # fmt: skip
+    assert facts.start_maps is None and best is lanczos
+
+
+def test_a_chosen_start_is_what_training_goes_back_to(mesh):
+    from geoscaler.optim.lit import LitRun
+
+    lanczos, flat = every_map_by(mesh, PLAN, "lanczos"), flat_start(mesh)
+    settings = LitSettings(validation_views=2, pool_views=2, views_per_step=1, lr=10.0)
+    run = LitRun(mesh, flat, {}, settings, "cpu", QUICK, {"lanczos": lanczos})
+    run.begin()
+    assert run.facts.start_maps == "lanczos"
+    run.step(cache=False)  # a step far too large: it validates below the start
+    run.validate()
+    assert run.facts.backtracks == 1
+    for (went_back, _), (chosen, _) in zip(
+        run.maps.asset().images(), lanczos.images(), strict=True
+    ):
+        assert np.array_equal(went_back, chosen)
+
+
+def test_the_other_starts_are_the_base_colours_with_every_other_map_by_a_filter(mesh):
+    from geoscaler.pipeline.lit import EVERY_MAP, _candidates
+
+    made = [None if m.base_color_texture is None else np.full((16, 16, 3), 7, np.uint8)
+            for m in mesh.materials]  # fmt: skip
+    start, others, baselines = _candidates(mesh, PLAN, made, None)
+    assert set(others) == set(EVERY_MAP)
+    for name, other in others.items():
+        for (pixels, places), (filtered, _) in zip(
+            other.images(), baselines[name].images(), strict=True
+        ):
+            if places[0][1] == "baseColorTexture":
+                assert (pixels[..., :3] == 7).all()
+            else:
+                assert np.array_equal(pixels, filtered)
+
+
 def test_a_stopped_controller_or_a_spent_budget_takes_no_step(mesh):
     start = flat_start(mesh)
     controller = Controller()

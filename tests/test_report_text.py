@@ -100,3 +100,26 @@ def test_a_run_the_budget_stopped_before_its_first_step_says_it_shipped_its_star
     assert "note: the time budget (15.0 s) left no time for a first step" in text
     report["details"]["stopped_by"] = "stopped"  # Ctrl-C before the first step: no such note
     assert "left no time for a first step" not in format_report(report)
+
+
+def test_the_lit_stage_says_which_start_it_trained_from():
+    report = document(90_000, {"Q": 30.0, "near": 29.0, "far": 28.0})
+    scores = {"Q": 24.83, "near": 23.6, "far": 25.68}
+    lit = {
+        "steps": 10, "best_step": 0, "stopped_by": "time budget", "shipped": "start",
+        "validation_scores": scores, "validation_views": 8, "start_maps": "lanczos",
+        "baseline_scores": {"start": scores, "lanczos": {"Q": 24.62, "near": 23.41, "far": 25.42}},
+    }  # fmt: skip
+    report["details"]["lit"] = lit
+    lines = format_report(report).splitlines()
+    assert (
+        "lit (protocol 2): normal and data maps trained through lit views, from every other map "
+        "by lanczos (it validated above its class's filter), 10 steps (best at step 0), stopped "
+        "by time budget; shipped start"
+    ) in lines
+    assert (
+        "  lit PSNR-fg on 8 views a set (Q / near / far): shipped 24.83 / 23.60 / 25.68; start "
+        "24.83 / 23.60 / 25.68; lanczos 24.62 / 23.41 / 25.42"
+    ) in lines
+    lit["start_maps"] = None  # the start's own maps, by their class: nothing more said
+    assert "from every other map" not in format_report(report)

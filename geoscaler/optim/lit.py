@@ -116,6 +116,8 @@ class LitFacts:
             the start is returned, with no scores).
         training_views: training views cached; validation_views: views of each set.
         backtracks: times the maps went back to the best.
+        start_maps: the other start whose maps the start took, where it validated above the
+            given one (:class:`LitRun`'s ``other_starts``); None: the given one.
     """
 
     steps: int = 0
@@ -128,6 +130,7 @@ class LitFacts:
     training_views: int = 0
     validation_views: int = 0
     backtracks: int = 0
+    start_maps: str | None = None
 
 
 class LitMaps:
@@ -248,16 +251,20 @@ class LitRun:
         settings: LitSettings,
         device: torch.device | str | None,
         evaluation: Evaluation,
+        other_starts: Mapping[str, TexturedMesh] | None = None,
     ):
         """``evaluation``: the validation views' size and protocol views; originals are read
-        uncapped (its reference cap is ignored)."""
+        uncapped (its reference cap is ignored). ``other_starts``: name -> ``start`` with
+        other trained maps (the same sizes); training starts from the one that validates
+        best (:meth:`begin`)."""
         evaluation = replace(evaluation, reference_max_size=None)
         self.settings = settings
+        self.other_starts = dict(other_starts or {})
         renderer = Renderer(original, device, evaluation)
         self.device = renderer.device
         scene = LitScene(renderer)
         reference = lit_materials(original, self.device)
-        self.maps = LitMaps(start, self.device, settings.kept)
+        self.train_from(start)
         sizes = map_sizes(self.maps.fixed)
         self.sets = validation_sets(scene, reference, sizes, settings.validation_views)
         self.candidates = {"start": start, **baselines}
@@ -269,7 +276,6 @@ class LitRun:
         training = replace(evaluation, image_size=side)
         training_scene = LitScene(Renderer(original, device, training))
         self.pool = LitViews(training_scene, reference, sizes, cameras)
-        self.optimiser = AdamW(self.maps.parameters(), lr=settings.lr, weight_decay=0.0)
         self.facts = LitFacts(validation_views=settings.validation_views)
 
     def least_cost(self, clock: Clock) -> float:
@@ -284,18 +290,40 @@ class LitRun:
         q.psnr(lit_materials(self.candidates["start"], self.device, encoded=False), count=1)
         score_seconds = clock.now() - began
         views = sum(len(v.cameras) for v in self.sets.values())
-        return least_seconds(view_seconds, score_seconds, views, len(self.candidates),
-                             self.settings)  # fmt: skip
+        scored = len(self.candidates) + len(self.other_starts)
+        return least_seconds(view_seconds, score_seconds, views, scored, self.settings)
 
     def begin(self) -> None:
-        """Cache the validation views, score the start and the baselines, set the floor."""
+        """Cache the validation views, score the start and the baselines, set the floor, and
+        start from the best-ranked of the start and the other starts."""
         for views in self.sets.values():
             while views.cache_next():
                 pass
         self.scores = {name: self.score(asset) for name, asset in self.candidates.items()}
         self.floor = Floor({k: v for k, v in self.scores.items() if k != "start"}, SET_NAMES)
+        self._choose_start()
         self.trained_rank = self.floor.rank(self.scores["start"])
         self.facts.baseline_scores = {name: dict(s) for name, s in self.scores.items()}
+
+    def _choose_start(self) -> None:
+        """Score every other start; the one that ranks first by the floor's order
+        (:meth:`~geoscaler.optim.floor.Floor.rank`, the order what ships is chosen in), where
+        it ranks above the start, becomes the start (its maps the trained parameters, a new
+        optimiser over them)."""
+        rank = self.floor.rank(self.scores["start"])
+        for name, asset in self.other_starts.items():
+            scores = self.score(asset)
+            if self.floor.rank(scores) > rank:
+                rank, self.facts.start_maps = self.floor.rank(scores), name
+                self.candidates["start"], self.scores["start"] = asset, scores
+        if self.facts.start_maps is not None:
+            self.trained = self.candidates["start"]  # what a backtrack goes back to
+            self.train_from(self.trained)
+
+    def train_from(self, start: TexturedMesh) -> None:
+        """Make ``start``'s lit maps the trained parameters, with a new optimiser over them."""
+        self.maps = LitMaps(start, self.device, self.settings.kept)
+        self.optimiser = AdamW(self.maps.parameters(), lr=self.settings.lr, weight_decay=0.0)
 
     def memory_left(self) -> bool:
         """Whether the views hold less than ``settings.view_memory``."""
@@ -360,6 +388,7 @@ def optimize_lit(
     controller: Controller | None = None,
     progress: Callable[[int, int], None] | None = None,
     evaluation: Evaluation | None = None,
+    other_starts: Mapping[str, TexturedMesh] | None = None,
 ) -> tuple[TexturedMesh, LitFacts]:
     """Train every lit map of ``start`` (the original's geometry and UVs, smaller maps of the
     same sizes as every baseline's) through lit views until ``budget`` or ``settings.steps``
@@ -371,9 +400,12 @@ def optimize_lit(
     the step limit ends validates. ``progress(done, total)`` follows each step: seconds of the
     budget (steps without one). ``evaluation``: the validation views' size and protocol views
     (default: the protocol's, originals uncapped; its reference cap is ignored).
+    ``other_starts``: ``start`` with other trained maps; training starts from the best-ranked
+    (:class:`LitRun`).
     """
     clock = budget.clock
-    run = LitRun(original, start, baselines, settings, device, evaluation or Evaluation())
+    evaluation = evaluation or Evaluation()
+    run = LitRun(original, start, baselines, settings, device, evaluation, other_starts)
     facts = run.facts
     if not run.maps.values:
         facts.stopped_by, facts.clears_floor = "nothing to train", False

@@ -51,6 +51,9 @@ unlit). Trained lit, the base colour learns the protocol's two lights: on the so
 gained 0.19 dB lit and lost 1.0 dB unlit (docs/decisions/lit-stage.md)."""
 CLASS_FILTERS = "class filters"
 """The baseline with Lanczos base colours and every other map by its class (Toksvig)."""
+EVERY_MAP = ("lanczos", "bicubic")
+"""The filters that resize every map as protocol 2's baselines do; the base colours the method
+made, with every other map by one of them, are the stage's other starts."""
 
 
 def lit_stage_applies(mesh: TexturedMesh, name: str, protocol: int) -> bool:
@@ -79,9 +82,10 @@ def lit_stage_price(
     here, the rest priced from them, as the stage's own check does; 0 where it would train
     nothing), priced before the method runs on the class filters' asset in place of its
     result (the same maps, sizes and candidates)."""
-    start, baselines = _candidates(mesh, plan, lanczos.textures if lanczos else None, lanczos)
+    textures = lanczos.textures if lanczos else None
+    start, others, baselines = _candidates(mesh, plan, textures, lanczos)
     settings = LitSettings(kept=KEPT)
-    run = LitRun(mesh, start, baselines, settings, device, evaluation or Evaluation())
+    run = LitRun(mesh, start, baselines, settings, device, evaluation or Evaluation(), others)
     return run.least_cost(clock) if run.maps.values else 0.0
 
 
@@ -90,16 +94,31 @@ def _candidates(
     plan: SizePlan,
     textures: list | None,
     lanczos: MethodResult | None,
-) -> tuple[TexturedMesh, dict[str, TexturedMesh]]:
+) -> tuple[TexturedMesh, dict[str, TexturedMesh], dict[str, TexturedMesh]]:
     """The lit stage's start (``textures`` as base colours, every other map by its class;
-    None: bicubic's) and its baselines (every map by Lanczos, by bicubic, and the class
-    filters where there is a Lanczos result)."""
-    baselines = {f: every_map_by(mesh, plan, f) for f in ("lanczos", "bicubic")}
+    None: bicubic's), its other starts (the same base colours, every other map by Lanczos,
+    by bicubic: a class's filter is not the best on every asset's lit views) and its baselines
+    (every map by Lanczos, by bicubic, and the class filters where there is a Lanczos
+    result)."""
+    baselines = {f: every_map_by(mesh, plan, f) for f in EVERY_MAP}
     if lanczos is not None:
         baselines[CLASS_FILTERS] = ship_asset(mesh, plan, lanczos.textures, "lanczos")[0]
     if textures is None:
-        return baselines["bicubic"], baselines
-    return ship_asset(mesh, plan, textures, "direct")[0], baselines
+        return baselines["bicubic"], {}, baselines
+    others = {f: _with_maps_of(mesh, plan, textures, baselines[f]) for f in EVERY_MAP}
+    return ship_asset(mesh, plan, textures, "direct")[0], others, baselines
+
+
+def _with_maps_of(
+    mesh: TexturedMesh, plan: SizePlan, textures: list, other: TexturedMesh
+) -> TexturedMesh:
+    """``textures`` as base colours, every other map as ``other`` has it (``mesh`` resized)."""
+    maps = {
+        id(original): (made, "")
+        for (original, places), (made, _) in zip(mesh.images(), other.images(), strict=True)
+        if places[0][1] != BASE_COLOR
+    }
+    return ship_asset(mesh, plan, textures, "direct", maps)[0]
 
 
 def train_lit(
@@ -142,17 +161,17 @@ def train_lit(
     """
     if budget.limited and not budget.fits(price):
         return replace(result, lit=LitFacts(stopped_by=NOT_AFFORDED, clears_floor=False))
-    start, baselines = _candidates(mesh, plan, result.textures, lanczos)
+    start, others, baselines = _candidates(mesh, plan, result.textures, lanczos)
     steps = steps or (None if budget.limited else LIT_STEPS)
     settings = LitSettings(steps=steps, seed=seed, kept=KEPT)
     best, facts = optimize_lit(
-        mesh, start, baselines, budget, settings, device, controller, progress, evaluation
+        mesh, start, baselines, budget, settings, device, controller, progress, evaluation, others
     )
     if not facts.validation_scores:  # not run: the maps ship by their class, as unlit
         return replace(result, lit=facts)
     how = {
         TRAINED: "trained through lit views (protocol 2)",
-        "start": "by its class, chosen on lit views",
+        "start": f"by {facts.start_maps or 'its class'}, chosen on lit views",
     }.get(facts.shipped, f"{facts.shipped} (every map), chosen on lit views")
     maps = {}
     for (original, places), (made, _) in zip(mesh.images(), best.images(), strict=True):

@@ -388,10 +388,13 @@ def _lit_lines(lit: dict[str, Any] | None) -> list[str]:
 
     chosen = scores(lit["validation_scores"])
     others = "; ".join(f"{name} {scores(v)}" for name, v in lit["baseline_scores"].items())
+    start, started = lit.get("start_maps"), ""
+    if start:
+        started = f", from every other map by {start} (it validated above its class's filter)"
     return [
-        f"lit (protocol 2): normal and data maps trained through lit views, {lit['steps']} steps "
-        f"(best at step {lit['best_step']}), stopped by {lit['stopped_by']}; shipped "
-        f"{lit['shipped']}",
+        f"lit (protocol 2): normal and data maps trained through lit views{started}, "
+        f"{lit['steps']} steps (best at step {lit['best_step']}), stopped by "
+        f"{lit['stopped_by']}; shipped {lit['shipped']}",
         f"  lit PSNR-fg on {lit['validation_views']} views a set ({' / '.join(sets)}): shipped "
         f"{chosen}; {others}",
     ]
