@@ -74,13 +74,15 @@ PRODUCTS = {"downsample --protocol 1": ("--protocol", "1"), "downsample": ()}
 
 @dataclass
 class Scores:
-    """Mean metrics of one candidate: protocol 2 per set, protocol 1 on Q."""
+    """Mean metrics of one candidate: protocol 2 per set, protocol 1 on Q; for a `downsample`
+    run, what its lit stage did (from its report)."""
 
     lit_psnr_fg: dict[str, float] = field(default_factory=dict)
     lit_ssim_fg: dict[str, float] = field(default_factory=dict)
     unlit_psnr_fg_q: float = float("nan")
     texture_bytes: int = 0
     seconds: float = float("nan")
+    lit_stage: str = ""
 
 
 def every_map(mesh: TexturedMesh, scale: int, resample: Image.Resampling) -> TexturedMesh:
@@ -126,18 +128,31 @@ def as_jpeg(original: TexturedMesh, mesh: TexturedMesh) -> TexturedMesh:
 
 def downsampled(
     mesh_path: Path, scale: int, budget: float, folder: Path, extra: tuple[str, ...] = ()
-) -> tuple[TexturedMesh, float]:
+) -> tuple[TexturedMesh, float, str]:
     """What ``geoscaler downsample`` (with ``extra`` flags) ships, read back from the GLB it
-    wrote, and the command's wall-clock seconds."""
+    wrote, the command's wall-clock seconds and what its lit stage did (:func:`lit_stage`)."""
     out = folder / f"out_x{scale}{''.join(extra)}.glb"
+    report = out.with_suffix(".json")
     command = [str(Path(sys.executable).parent / "geoscaler"), "downsample", str(mesh_path)]
     command += ["--scale", str(scale), "--time-budget", str(budget), "-o", str(out), "--force"]
+    command += ["--report", str(report)]
     started = time.perf_counter()
     run = subprocess.run([*command, *extra], capture_output=True, text=True)
     seconds = time.perf_counter() - started
     if run.returncode != 0:
         raise RuntimeError(f"{' '.join(command)} failed:\n{run.stderr[-2000:]}")
-    return load_mesh(out), seconds
+    return load_mesh(out), seconds, lit_stage(json.loads(report.read_text()))
+
+
+def lit_stage(report: dict) -> str:
+    """What a report's lit stage shipped and from which start, or why it did not run."""
+    lit = report["details"].get("lit")
+    if not lit:
+        return "no lit stage"
+    if not lit["validation_scores"]:
+        return f"lit stage not run ({lit['stopped_by']})"
+    start = lit.get("start_maps") or "class"
+    return f"lit stage shipped {lit['shipped']}, from {start} maps, {lit['steps']} steps"
 
 
 def unlit_psnr(original: TexturedMesh, candidate: TexturedMesh, cameras: list[Camera]) -> float:
@@ -216,12 +231,13 @@ def score_mesh(
     candidates["maps"] = maps
     candidates["maps+toksvig"] = class_maps(mesh, scale, toksvig=True)
     candidates["maps as JPEG"] = as_jpeg(mesh, maps)
-    walls = {}
+    walls, stages = {}, {}
     with tempfile.TemporaryDirectory() as folder:
         if budget is not None:
             for name, flags in PRODUCTS.items():
-                made = downsampled(path, scale, budget, Path(folder), flags)
-                candidates[name], walls[name] = made
+                candidates[name], walls[name], stages[name] = downsampled(
+                    path, scale, budget, Path(folder), flags
+                )
         if figure is not None:
             shown = {
                 k: v
@@ -245,6 +261,7 @@ def score_mesh(
             results[name].unlit_psnr_fg_q = unlit_psnr(mesh, candidate, cameras)
             results[name].texture_bytes = texture_bytes(candidate)
             results[name].seconds = walls.get(name, float("nan"))
+            results[name].lit_stage = stages.get(name, "")
     return results
 
 
@@ -277,7 +294,8 @@ def main() -> int:
                     f"{path.parent.name:28s} x{scale} {name:18s} lit {lit}  "
                     f"ssim Q {scores.lit_ssim_fg['Q']:.4f}  unlit Q "
                     f"{scores.unlit_psnr_fg_q:6.2f}  {scores.texture_bytes / 1e3:8.1f} kB"
-                    + ("" if scores.seconds != scores.seconds else f"  {scores.seconds:.1f} s"),
+                    + ("" if scores.seconds != scores.seconds else f"  {scores.seconds:.1f} s")
+                    + (f"  ({scores.lit_stage})" if scores.lit_stage else ""),
                     flush=True,
                 )
             print(f"  ({time.perf_counter() - start:.0f} s)", flush=True)
