@@ -116,8 +116,8 @@ class LitFacts:
             the start is returned, with no scores).
         training_views: training views cached; validation_views: views of each set.
         backtracks: times the maps went back to the best.
-        start_maps: the other start whose maps the start took, where it validated above the
-            given one (:class:`LitRun`'s ``other_starts``); None: the given one.
+        start_maps: the other start trained from, where it ranked above the given one
+            (:class:`LitRun`'s ``other_starts``); None: the given one.
     """
 
     steps: int = 0
@@ -255,8 +255,8 @@ class LitRun:
     ):
         """``evaluation``: the validation views' size and protocol views; originals are read
         uncapped (its reference cap is ignored). ``other_starts``: name -> ``start`` with
-        other trained maps (the same sizes); training starts from the one that validates
-        best (:meth:`begin`)."""
+        other trained maps (the same sizes); training starts from the one that ranks first
+        on the validation (:meth:`begin`)."""
         evaluation = replace(evaluation, reference_max_size=None)
         self.settings = settings
         self.other_starts = dict(other_starts or {})

@@ -112,7 +112,8 @@ def _candidates(
 def _with_maps_of(
     mesh: TexturedMesh, plan: SizePlan, textures: list, other: TexturedMesh
 ) -> TexturedMesh:
-    """``textures`` as base colours, every other map as ``other`` has it (``mesh`` resized)."""
+    """``mesh`` as it ships with ``textures`` as base colours and every other map as
+    ``other`` (``mesh`` with every map resized by one filter) has it."""
     maps = {
         id(original): (made, "")
         for (original, places), (made, _) in zip(mesh.images(), other.images(), strict=True)
