@@ -10,7 +10,7 @@ Columns: seconds from the command's start to its first optimisation step (from i
 steps, wall seconds, what shipped, the gain over bicubic per set, the share of the texel
 ceiling's gain on Q (``--ceiling``: JSON rows of ``benchmarks/texel_ceiling.py``), and whether
 the file is below the best filter on any set (the filters scored in the file's UVs as written
-where it keeps the mesh's layout: :data:`KEPT_UV_ULPS`).
+where it keeps the mesh's layout: :data:`KEPT_UV_TOLERANCE`).
 
 ``--loop JSON`` overrides settings of the learned method's loop (``OptimizeConfig`` fields, as
 ``geoscaler.cli.main(optimize=...)`` takes them; e.g. ``'{"distances": [[1.8, 3.0]]}'``): to
@@ -119,7 +119,7 @@ def corner_uvs_of(mesh: TexturedMesh, output: TexturedMesh) -> np.ndarray:
     return uvs
 
 
-KEPT_UV_ULPS = 1e-6
+KEPT_UV_TOLERANCE = 1e-6
 """A written file keeps the mesh's layout where each corner's UV is within this of the mesh's:
 glTF stores v flipped (``1 - v``) in float32, which moves an OBJ's UVs by one float32 step
 (3e-8 to 6e-8) and a score by up to a few 1e-4 dB (ycb_chain shipping Lanczos's own texels:
@@ -130,7 +130,7 @@ def score_runs(mesh_path: Path, scale: int, distances: list[float], runs: list[d
     """PSNR-fg of bicubic and Lanczos per distance; each run gets its own ``psnr`` per distance,
     its output rendered in its own UVs (:func:`corner_uvs_of`), and ``filter_psnr``: the
     filters in the same UVs as written where the file keeps the mesh's layout
-    (:data:`KEPT_UV_ULPS`; one scoring per distinct written layout), else the returned ones,
+    (:data:`KEPT_UV_TOLERANCE`; one scoring per distinct written layout), else the returned ones,
     so that a file is found below a filter only where it is, not by its writer's rounding.
 
     The shipped textures have the sizes the product gives (``scale`` on the full-resolution
@@ -151,7 +151,7 @@ def score_runs(mesh_path: Path, scale: int, distances: list[float], runs: list[d
     for run in runs:
         run["psnr"] = {}
         run["uvs"] = corner_uvs_of(mesh, run["output"])  # its own layout where it ships a new one
-        if np.abs(run["uvs"] - own_uvs).max() <= KEPT_UV_ULPS:
+        if np.abs(run["uvs"] - own_uvs).max() <= KEPT_UV_TOLERANCE:
             run["filter_psnr"] = written.setdefault(run["uvs"].tobytes(), {n: {} for n in filters})
         else:
             run["filter_psnr"] = filter_psnr
