@@ -313,8 +313,8 @@ class LitRun:
         rank = self.floor.rank(self.scores["start"])
         for name, asset in self.other_starts.items():
             scores = self.score(asset)
-            if self.floor.rank(scores) > rank:
-                rank, self.facts.start_maps = self.floor.rank(scores), name
+            if (ranked := self.floor.rank(scores)) > rank:
+                rank, self.facts.start_maps = ranked, name
                 self.candidates["start"], self.scores["start"] = asset, scores
         if self.facts.start_maps is not None:
             self.trained = self.candidates["start"]  # what a backtrack goes back to
