@@ -163,10 +163,13 @@ def fake_race(
     winner: str | None = None,
     ends: list | None = None,
     worst: dict[str, float] | None = None,
+    trial_times: list | None = None,
 ):
     """``--uv auto``'s race with every phase's loop faked: the first trial makes
-    ``first_made`` steps and stops for ``first_stopped_by``, later phases make the steps they
-    are given; every layout validates alike, or ``winner``'s better. Returns the result, the
+    ``first_made`` steps and stops for ``first_stopped_by`` (taking 2.5 s where the context's
+    clock is a ManualClock), later phases make the steps they are given; every layout
+    validates alike, or ``winner``'s better. ``trial_times`` receives the first trial's
+    seconds each time the new layouts are planned. Returns the result, the
     facts, ``(layout, steps)`` per phase, how many times the new layouts were planned, and the
     layouts whose training pool was still held as the race's last phase started; ``ends``
     receives ``(layout, loop end, reserve)`` per phase. The race runs in ``context`` (default:
@@ -177,6 +180,7 @@ def fake_race(
     from types import SimpleNamespace
 
     import geoscaler.methods.repacked as repacked
+    from geoscaler.clock import ManualClock
     from geoscaler.methods.registry import LayoutFacts, LoopFacts, MethodResult
     from geoscaler.optim.loop import OptimizeConfig
     from geoscaler.optim.validation import Scores
@@ -188,6 +192,8 @@ def fake_race(
 
     def fit(self, mesh, rule, layout, model, loop_end, reserve, steps, facts=None, **handover):
         made, stopped_by = (first_made, first_stopped_by) if self.first else (steps, "steps")
+        if self.first and isinstance(self.context.clock, ManualClock):
+            self.context.clock.advance(2.5)
         fits.append((layout.name, made))
         ends.append((layout.name, loop_end, reserve))
         # the trial before the planning caches views in what the planning leaves of the share
@@ -228,8 +234,10 @@ def fake_race(
             name=name, validation=validation, atlas=atlas, starts=[], renderer=cpu
         )
 
-    def later() -> dict:
+    def later(trial_seconds: float) -> dict:
         planned.append(True)
+        if trial_times is not None:
+            trial_times.append(trial_seconds)
         return {"repack": layout("repack")}
 
     model = SimpleNamespace(restore=lambda textures: None, candidate=lambda: None)
@@ -596,9 +604,10 @@ def test_no_layout_is_planned_where_the_time_left_cannot_hold_its_plan_and_bake(
     config = OptimizeConfig(pool_views=8)
     rule = SizeRule(scale=4)
 
-    def offered(end: float) -> tuple[int, LayoutFacts]:
+    def offered(end: float, trial: float | None = None) -> tuple[int, LayoutFacts]:
         facts = LayoutFacts(uv="auto")
-        return len(_timely_layouts(cube, rule, renderer, config, validation, end, facts)), facts
+        layouts = _timely_layouts(cube, rule, renderer, config, validation, end, facts, trial)
+        return len(layouts), facts
 
     # The plan's share of the time left cannot hold the bake: nothing planned.
     count, facts = offered(end=100.0 + 0.9 * baking / PREPARING_SHARE)
@@ -608,6 +617,46 @@ def test_no_layout_is_planned_where_the_time_left_cannot_hold_its_plan_and_bake(
     assert facts.planned is None
     count, facts = offered(end=100.0 + 1000 * baking)  # time enough: the layout is offered
     assert count == 1 and facts.skipped is None and facts.planned is not None
+
+
+def test_after_the_own_trial_a_layout_is_planned_while_the_time_left_holds_its_bake_and_trial(
+    cube,
+):
+    """The share of the time left cannot hold the bake, but the time left holds the bake and
+    a trial as long as the own layout's: the first new layout is planned; a trial longer than
+    that leaves none."""
+    from geoscaler.clock import ManualClock
+    from geoscaler.methods.registry import LayoutFacts
+    from geoscaler.methods.repacked import PREPARING_SHARE, _timely_layouts, bake_seconds
+    from geoscaler.optim.loop import OptimizeConfig
+    from geoscaler.optim.validation import Validation, validation_view_sets
+    from geoscaler.render.renderer import Renderer
+    from geoscaler.resize.sizes import SizeRule
+
+    clock = ManualClock(100.0)
+    renderer = Renderer(cube, "cpu", QUICK)
+    validation = Validation(validation_view_sets(renderer), [(64, 64)], clock=clock)
+    baking = bake_seconds([(64, 64)], renderer.reference_maps())
+    config, rule = OptimizeConfig(pool_views=8), SizeRule(scale=4)
+    end = 100.0 + 2.25 * baking
+    assert PREPARING_SHARE * (end - 100.0) < baking  # the share alone: no time to plan
+
+    def offered(trial: float | None) -> int:
+        facts = LayoutFacts(uv="auto")
+        return len(_timely_layouts(cube, rule, renderer, config, validation, end, facts, trial))
+
+    assert offered(None) == 0  # no trial came first (--uv repack): the share decides
+    assert offered(0.25 * baking) == 1  # 2.25 bakes left: a bake and a trial of 0.25 fit
+    assert offered(1.5 * baking) == 0  # a bake and a trial of 1.5 do not
+
+
+def test_the_planning_after_the_own_trial_is_told_how_long_that_trial_took(monkeypatch):
+    from geoscaler.clock import ManualClock
+
+    times = []
+    context = RunContext(time_budget=100.0, clock=ManualClock())
+    fake_race(monkeypatch, 2, "steps", context=context, trial_times=times)
+    assert times == [2.5]
 
 
 def test_the_bake_is_priced_per_sample_of_its_grids():

@@ -81,7 +81,9 @@ PREPARING_SHARE = 0.4
 the own layout's trial) by which the new layouts are planned and baked, the rest left to the
 steps: the packing's search stops there, the cut's plan is not
 made where it would end later (:func:`~geoscaler.uv.atlas.repack`), nor the bake where its
-estimate would (:func:`bake_seconds`: the mesh's own layout goes on). The trial that runs
+estimate would (:func:`bake_seconds`: the mesh's own layout goes on). The first new layout
+may take longer, as long as the time left after it still holds its bake and a trial as long
+as the own layout's (:func:`_planning_deadline`). The trial that runs
 before the planning caches its views within the rest of the loop's caching share
 (:data:`FIRST_TRIAL_CACHING`)."""
 FIRST_TRIAL_CACHING = CACHING_SHARE * (1.0 - PREPARING_SHARE)
@@ -324,8 +326,10 @@ def repacked_direct(
     new_end = None if end is None else end - context.relayout_reserve
     own = Layout(renderer.relaid(mesh.uvs, memo), validation)
 
-    def planned() -> dict[str, Layout]:
-        atlases = _timely_layouts(mesh, rule, renderer, config, validation, new_end, facts)
+    def planned(trial_seconds: float | None = None) -> dict[str, Layout]:
+        atlases = _timely_layouts(
+            mesh, rule, renderer, config, validation, new_end, facts, trial_seconds
+        )
         return {
             name: _new_layout(mesh, atlas, renderer, validation, sizes, memo)
             for name, atlas in zip(NEW_LAYOUTS, atlases, strict=False)
@@ -363,16 +367,17 @@ def raced(
     context: RunContext,
     started: float,
     facts: LayoutFacts,
-    later: Callable[[], dict[str, Layout]] | None = None,
+    later: Callable[[float], dict[str, Layout]] | None = None,
 ) -> MethodResult:
     """A trial in each layout (``--uv auto``: the mesh's own and the new ones; ``repack``: the
     new ones, aligned and not), then the one whose trial validates best goes on from its best
     candidate with the steps and the time left.
 
-    ``later`` makes more layouts once the trials of ``layouts`` have run (``--uv auto``: the
-    new ones are planned and baked after the own layout's trial): the first step waits on no
-    planning, and a race that ends after that trial (nothing visible left to gain, no step
-    made, stopped) plans nothing (the reason in ``facts.skipped``).
+    ``later(trial_seconds)`` makes more layouts once the trials of ``layouts`` have run
+    (``--uv auto``: the new ones are planned and baked after the own layout's trial, which
+    took ``trial_seconds``): the first step waits on no planning, and a race that ends after
+    that trial (nothing visible left to gain, no step made, stopped) plans nothing (the reason
+    in ``facts.skipped``).
 
     The first trial runs, after what the race pays once (the validation views' caching and
     the baselines' scoring), at most :data:`TRIAL_SHARE` of the time left and that share of
@@ -412,7 +417,7 @@ def raced(
         if race.ended:
             facts.skipped = race.ended
         else:
-            layouts = {**layouts, **later()}
+            layouts = {**layouts, **later(race.first_seconds)}
             race.run_each(mesh, rule, layouts, start_model)
     winner = _winner(race.results, layouts, facts, race.steps_each, race.starts)
     facts.race.update(race.gated)
@@ -477,13 +482,18 @@ def _timely_layouts(
     validation: Validation,
     end: float | None,
     facts: LayoutFacts,
+    trial_seconds: float | None = None,
 ) -> list[Atlas]:
     """The new layouts (:func:`offered_layouts`), planned and baked by :data:`PREPARING_SHARE`
-    of the time from now to ``end`` (None: no budget). Each bake is priced first
-    (:func:`bake_seconds`), so each plan's deadline leaves the bakes their time."""
+    of the time from now to ``end`` (None: no budget), the first one by the time that still
+    holds its bake and a trial of ``trial_seconds`` if that is later (:func:`_planning_deadline`).
+    Each bake is priced first (:func:`bake_seconds`), so each plan's deadline leaves the bakes
+    their time."""
     clock = validation.clock
-    planned_by, baking = _planning_deadline(mesh, rule, renderer, clock, end)
-    return offered_layouts(mesh, rule, renderer, config, facts, clock, planned_by, baking)
+    planned_by, first_by, baking = _planning_deadline(
+        mesh, rule, renderer, clock, end, trial_seconds
+    )
+    return offered_layouts(mesh, rule, renderer, config, facts, clock, planned_by, baking, first_by)
 
 
 def offered_layouts(
@@ -495,6 +505,7 @@ def offered_layouts(
     clock: Clock = WALL_CLOCK,
     planned_by: float | None = None,
     baking: float = 0.0,
+    first_by: float | None = None,
 ) -> list[Atlas]:
     """The new layouts a race may weigh (:data:`NEW_LAYOUTS`): the planned one, and where that
     aligned its charts to the original's mip blocks (:func:`~geoscaler.uv.atlas.alignment_for`)
@@ -509,11 +520,12 @@ def offered_layouts(
     Args:
         planned_by: the instant on ``clock`` the first plan must be done by (None: no limit);
             each later one by ``baking`` seconds (a bake's estimate) earlier.
+        first_by: a later instant for the first plan (None: ``planned_by``).
     """
     atlases: list[Atlas] = []
     views = PlanningViews(renderer, config)
     for align in (True, False):
-        deadline = None if planned_by is None else planned_by - len(atlases) * baking
+        deadline = _plan_deadline(planned_by, first_by, baking, len(atlases))
         if deadline is not None and clock.now() >= deadline:
             break
         if deadline is not None and not views.render_by(deadline, clock):
@@ -535,21 +547,42 @@ def offered_layouts(
     return atlases
 
 
+def _plan_deadline(
+    planned_by: float | None, first_by: float | None, baking: float, made: int
+) -> float | None:
+    """The instant the plan after ``made`` others must be done by (:func:`offered_layouts`'s
+    arguments; None: no limit)."""
+    if planned_by is None:
+        return None
+    deadline = planned_by - made * baking
+    return deadline if first_by is None or made else max(first_by, deadline)
+
+
 def _planning_deadline(
     mesh: TexturedMesh,
     rule: SizeRule,
     renderer: Renderer,
     clock: Clock,
     end: float | None,
-) -> tuple[float | None, float]:
-    """``(instant the first plan must be done by, seconds a bake takes)`` (None and 0 without
-    a budget; the bake priced by :func:`bake_seconds`)."""
+    trial_seconds: float | None = None,
+) -> tuple[float | None, float | None, float]:
+    """``(instant the plans must be done by, a later one for the first plan or None, seconds a
+    bake takes)`` (None, None and 0 without a budget; the bake priced by :func:`bake_seconds`).
+
+    The plans are done by :data:`PREPARING_SHARE` of the time left, less the bake. After a
+    trial of ``trial_seconds`` (the own layout's, its views' caching included), the first
+    plan may end as late as the time left to ``end`` still holds its bake and a trial as long:
+    the race needs no more to weigh it. On a short budget the share alone left the planning
+    less than its views took (bob at 4x and 15 s: 1.5 s where the views took 0.8 to 1 s and
+    the own trial 3 s), and whether a layout that gains 3 dB was weighed at all was decided by
+    tenths of a second."""
     if end is None:
-        return None, 0.0
+        return None, None, 0.0
     sizes = output_sizes_for(mesh, rule, renderer)
     baking = bake_seconds(sizes, renderer.reference_maps())
     now = clock.now()
-    return now + PREPARING_SHARE * (end - now) - baking, baking
+    first_by = None if trial_seconds is None else end - trial_seconds - baking
+    return now + PREPARING_SHARE * (end - now) - baking, first_by, baking
 
 
 def _relayout_reserve(layout: Layout, context: RunContext) -> float:
@@ -589,6 +622,8 @@ class _Trials:
         self.starts: dict[str, dict[str, float]] = {}
         self.gated: dict[str, TrialFacts] = {}
         self.steps = 0
+        self.first_seconds = 0.0
+        """Seconds on the context's clock the first trial took, its views' caching included."""
 
     def run_each(
         self, mesh: TexturedMesh, rule: SizeRule, layouts: dict[str, Layout], start_model: Any
@@ -649,6 +684,7 @@ class _Trials:
             deadline = min(deadline, self.end - _relayout_reserve(layout, self.context))
         if first and self.planning_follows:
             handover["caching_share"] = FIRST_TRIAL_CACHING
+        began = self.context.clock.now()
         phase = _Phase(self.config, self.context, self.started, self.steps, first, last=False)
         pool = training_views(layout.renderer, self.cameras, layout.validation.sizes, True)
         result = phase.fit(
@@ -660,6 +696,7 @@ class _Trials:
         self.steps += result.loop.steps
         if first:
             self.steps_each = result.loop.steps
+            self.first_seconds = self.context.clock.now() - began
 
     def _invisible(self, validation: Validation, first: MethodResult) -> bool:
         """Whether the first trial ended with its validation showing a filter beyond what is
