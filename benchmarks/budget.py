@@ -53,8 +53,11 @@ DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 BUSY_LOOP = "while True: pass"
 LOOP_OVERRIDE = (
     "import json, sys; from geoscaler.cli import main; "
-    "sys.exit(main(sys.argv[2:], optimize=json.loads(sys.argv[1])))"
+    "optimize = json.loads(sys.argv.pop(1)); sys.exit(main(optimize=optimize))"
 )
+"""``--loop``'s job: ``main()`` with argv None reads the command from ``sys.argv`` and counts
+the budget from the process's start, as the plain command does (``main(argv)`` counts from
+its call)."""
 
 
 def run_downsample(
