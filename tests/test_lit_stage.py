@@ -288,31 +288,6 @@ def test_the_lit_stage_is_priced_before_it_runs_as_its_own_check_prices_it(mesh)
     assert facts.stopped_by == NOT_AFFORDED
 
 
-def test_other_starts_are_priced_apart_and_weighed_only_where_the_budget_holds_them(mesh):
-    from geoscaler.optim.lit import LitRun, least_seconds
-
-    settings = LitSettings(steps=0, validation_views=2, pool_views=4, views_per_step=2)
-    others = {"lanczos": every_map_by(mesh, PLAN, "lanczos")}
-    run = LitRun(mesh, flat_start(mesh), {}, settings, "cpu", QUICK, others)
-    # one second a reading: the stage's least as without other starts, their scoring apart
-    assert run.least_cost(SlowClock()) == least_seconds(1.0, 1.0, 6, 1, settings) == 22.0
-    assert run.other_starts_cost == 6 * 1.0  # one other start scored on 6 views
-
-    def weighed(seconds: float) -> tuple[bool, str | None]:
-        clock = SlowClock()
-        _, facts = optimize_lit(
-            mesh, flat_start(mesh), {}, Budget(clock, clock.now(), seconds), settings, "cpu",
-            evaluation=QUICK, other_starts=others,
-        )  # fmt: skip
-        assert facts.stopped_by != NOT_AFFORDED
-        return facts.other_starts_weighed, facts.start_maps
-
-    # the least (22 s) and the other start's scoring (6 s) after the readings of the pricing
-    assert weighed(40.0) == (True, "lanczos")
-    # the least but not the other start: the given start is trained, the time its steps'
-    assert weighed(30.0) == (False, None)
-
-
 def test_a_lit_share_too_short_for_the_stage_goes_to_the_method_before_it():
     from geoscaler.pipeline.job import lit_share
     from geoscaler.pipeline.lit import LIT_SHARE

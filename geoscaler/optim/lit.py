@@ -118,8 +118,6 @@ class LitFacts:
         backtracks: times the maps went back to the best.
         start_maps: the other start trained from, where it ranked above the given one
             (:class:`LitRun`'s ``other_starts``); None: the given one.
-        other_starts_weighed: the other starts were scored (False: none was given, or the
-            budget held the stage's least cost but not their scoring on top).
     """
 
     steps: int = 0
@@ -133,7 +131,6 @@ class LitFacts:
     validation_views: int = 0
     backtracks: int = 0
     start_maps: str | None = None
-    other_starts_weighed: bool = False
 
 
 class LitMaps:
@@ -263,9 +260,6 @@ class LitRun:
         evaluation = replace(evaluation, reference_max_size=None)
         self.settings = settings
         self.other_starts = dict(other_starts or {})
-        self.other_starts_cost = 0.0
-        """Seconds scoring the other starts on every validation view takes (priced by
-        :meth:`least_cost`)."""
         renderer = Renderer(original, device, evaluation)
         self.device = renderer.device
         scene = LitScene(renderer)
@@ -287,9 +281,7 @@ class LitRun:
     def least_cost(self, clock: Clock) -> float:
         """Cache the first Q view and time it and the start's score there (on ``clock``): the
         least this run costs (:func:`least_seconds`), caching every validation view, scoring
-        every candidate on them and :data:`LEAST_STEPS` steps. Scoring the other starts is
-        priced apart (:attr:`other_starts_cost`): the run goes on without them where the
-        budget holds the least but not them too."""
+        every candidate on them and :data:`LEAST_STEPS` steps."""
         q = self.sets["Q"]
         began = clock.now()
         q.cache_next()
@@ -298,20 +290,8 @@ class LitRun:
         q.psnr(lit_materials(self.candidates["start"], self.device, encoded=False), count=1)
         score_seconds = clock.now() - began
         views = sum(len(v.cameras) for v in self.sets.values())
-        self.other_starts_cost = views * score_seconds * len(self.other_starts)
-        scored = len(self.candidates)
+        scored = len(self.candidates) + len(self.other_starts)
         return least_seconds(view_seconds, score_seconds, views, scored, self.settings)
-
-    def affords(self, budget: Budget) -> bool:
-        """Whether ``budget`` holds the least this run costs (:meth:`least_cost`, always held
-        without a limit); where it does not hold the other starts' scoring on top, they are
-        left out and the given start is trained."""
-        if not budget.limited:
-            return True
-        least, left = self.least_cost(budget.clock), budget.left()
-        if least + self.other_starts_cost > left:
-            self.other_starts = {}
-        return least <= left
 
     def begin(self) -> None:
         """Cache the validation views, score the start and the baselines, set the floor, and
@@ -331,7 +311,6 @@ class LitRun:
         it ranks above the start, becomes the start (its maps the trained parameters, a new
         optimiser over them)."""
         rank = self.floor.rank(self.scores["start"])
-        self.facts.other_starts_weighed = bool(self.other_starts)
         for name, asset in self.other_starts.items():
             scores = self.score(asset)
             if (ranked := self.floor.rank(scores)) > rank:
@@ -422,7 +401,7 @@ def optimize_lit(
     budget (steps without one). ``evaluation``: the validation views' size and protocol views
     (default: the protocol's, originals uncapped; its reference cap is ignored).
     ``other_starts``: ``start`` with other trained maps; training starts from the best-ranked
-    (:class:`LitRun`), where the budget holds their scoring on top of the least the run costs.
+    (:class:`LitRun`).
     """
     clock = budget.clock
     evaluation = evaluation or Evaluation()
@@ -431,7 +410,7 @@ def optimize_lit(
     if not run.maps.values:
         facts.stopped_by, facts.clears_floor = "nothing to train", False
         return start, facts
-    if not run.affords(budget):
+    if budget.limited and not budget.fits(run.least_cost(clock)):
         facts.stopped_by, facts.clears_floor = NOT_AFFORDED, False
         return start, facts
     run.begin()
