@@ -4,6 +4,7 @@ stage after ``direct``."""
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -13,7 +14,14 @@ from mesh_support import pbr_demo
 from geoscaler.clock import Budget, ManualClock
 from geoscaler.io import load_mesh, save_mesh
 from geoscaler.optim.events import Controller
-from geoscaler.optim.lit import NOT_AFFORDED, TRAINED, LitMaps, LitSettings, optimize_lit
+from geoscaler.optim.lit import (
+    NOT_AFFORDED,
+    TRAINED,
+    LitMaps,
+    LitPrice,
+    LitSettings,
+    optimize_lit,
+)
 from geoscaler.pipeline.shipping import every_map_by
 from geoscaler.protocol import Evaluation
 from geoscaler.render.lit import NORMAL
@@ -154,11 +162,12 @@ def test_a_chosen_start_is_what_training_goes_back_to(mesh):
 
 
 def test_the_other_starts_are_the_base_colours_with_every_other_map_by_a_filter(mesh):
-    from geoscaler.pipeline.lit import EVERY_MAP, _candidates
+    from geoscaler.pipeline.lit import EVERY_MAP, _baselines, _starts
 
     made = [None if m.base_color_texture is None else np.full((16, 16, 3), 7, np.uint8)
             for m in mesh.materials]  # fmt: skip
-    start, others, baselines = _candidates(mesh, PLAN, made, None)
+    baselines = _baselines(mesh, PLAN, None)
+    start, others = _starts(mesh, PLAN, made, baselines)
     assert set(others) == set(EVERY_MAP)
     for name, other in others.items():
         for (pixels, places), (filtered, _) in zip(
@@ -242,6 +251,28 @@ def test_downsample_under_protocol_2_ships_every_map_trained_lit(tmp_path, capsy
     assert shipped.materials[0].maps[NORMAL].shape[:2] == (16, 16)
 
 
+def test_under_a_time_budget_the_job_trains_the_lit_run_it_priced(tmp_path, monkeypatch):
+    from geoscaler.cli import main
+    from geoscaler.optim.lit import LitRun
+
+    built, build = [], LitRun.__init__
+
+    def counted(self, *args, **kwargs):
+        built.append(self)
+        build(self, *args, **kwargs)
+
+    monkeypatch.setattr(LitRun, "__init__", counted)
+    source = tmp_path / "pbr.glb"
+    save_mesh(pbr_demo(texture_size=64, subdivisions=6), source)
+    argv = ["downsample", str(source), "-o", str(tmp_path / "out.glb"), "--scale", "4",
+            "--steps", "4", "--time-budget", "300", "--device", "cpu", "--uv", "keep",
+            "--report", str(tmp_path / "r.json")]  # fmt: skip
+    assert main(argv, evaluation=QUICK) == 0
+    lit = json.loads((tmp_path / "r.json").read_text())["details"]["lit"]
+    assert lit["steps"] == 4 and not lit["other_starts_left_out"]
+    assert len(built) == 1  # priced before direct, then trained from direct's result
+
+
 def test_protocol_1_leaves_the_other_maps_to_their_class_and_2_keeps_its_base_colour(tmp_path):
     from geoscaler.cli import main
 
@@ -275,17 +306,36 @@ def test_a_method_the_lit_stage_does_not_follow_says_so(tmp_path, capsys):
     assert "lit (protocol 2): not run: the lit stage follows direct only" in capsys.readouterr().out
 
 
-def test_the_lit_stage_is_priced_before_it_runs_as_its_own_check_prices_it(mesh):
-    from geoscaler.optim.lit import LEAST_STEPS, LitRun, least_seconds
+def test_a_lit_run_is_priced_once_and_decides_on_that_price(mesh):
+    from geoscaler.optim.lit import LEAST_STEPS, LitRun, least_seconds, train
 
     settings = LitSettings(validation_views=2, pool_views=4, views_per_step=2)
-    # one second a reading: the view cached and the start's score there take 1 s each
-    price = LitRun(mesh, flat_start(mesh), {}, settings, "cpu", QUICK).least_cost(SlowClock())
-    assert price == least_seconds(1.0, 1.0, 6, 1, settings) == 6 * 2 + LEAST_STEPS * 2
-    clock = SlowClock()  # the stage's own check takes the same price: 22 s do not hold it
-    _, facts = optimize_lit(mesh, flat_start(mesh), {}, Budget(clock, clock.now(), 21.0),
-                            settings, "cpu", evaluation=QUICK)  # fmt: skip
+    run = LitRun(mesh, flat_start(mesh), {}, settings, "cpu", QUICK)
+    clock = SlowClock()  # one second a reading: the view cached and the start's score, 1 s each
+    price = run.price(clock)
+    assert price.least == least_seconds(1.0, 1.0, 6, 1, settings) == 6 * 2 + LEAST_STEPS * 2
+    readings = clock.now()
+    assert run.price(clock) is price and clock.now() == readings + 1.0  # not priced again
+    assert len(run.sets["Q"]) == 1  # its first view stays cached for the run
+    _, facts = train(run, Budget(clock, clock.now(), 21.0))  # 22 s do not hold it
     assert facts.stopped_by == NOT_AFFORDED
+
+
+def test_the_other_starts_are_weighed_only_where_the_time_holds_them_on_top(mesh):
+    from geoscaler.optim.lit import LitRun, train
+
+    settings = LitSettings(steps=1, validation_views=2, pool_views=4, views_per_step=2)
+    others = {"lanczos": every_map_by(mesh, PLAN, "lanczos")}
+    # least 6 x (1 + 1) + 5 x 2 = 22 s; the other start's scoring 6 x 1 s on top
+    for seconds, weighed in ((30.0, True), (25.0, False)):
+        run = LitRun(mesh, flat_start(mesh), {}, settings, "cpu", QUICK, others)
+        clock = SlowClock()
+        price = run.price(clock)
+        assert (price.least, price.other_starts) == (22.0, 6.0)
+        _, facts = train(run, Budget(clock, clock.now(), seconds))
+        assert facts.other_starts_left_out is not weighed
+        assert facts.start_maps == ("lanczos" if weighed else None)
+        assert facts.steps == 1
 
 
 def test_a_lit_share_too_short_for_the_stage_goes_to_the_method_before_it():
@@ -303,10 +353,11 @@ def test_a_lit_stage_the_time_left_cannot_hold_spends_nothing(mesh, monkeypatch)
     def untouched(*args, **kwargs):
         raise AssertionError("the stage was run")
 
-    monkeypatch.setattr(lit_stage, "optimize_lit", untouched)
+    monkeypatch.setattr(lit_stage, "train", untouched)
     monkeypatch.setattr(lit_stage, "ship_asset", untouched)
     result = MethodResult([None])
     budget = Budget(ManualClock(), 0.0, 8.0)  # 8 s left for a stage priced at 8.8
-    out = lit_stage.train_lit(mesh, PLAN, "direct", result, None, budget, "cpu", price=8.8)
+    stage = SimpleNamespace(priced=LitPrice(least=8.8, other_starts=1.0))
+    out = lit_stage.train_lit(mesh, PLAN, "direct", result, None, budget, "cpu", stage=stage)
     assert out.lit.stopped_by == NOT_AFFORDED and not out.lit.clears_floor
     assert out.textures == result.textures

@@ -123,3 +123,10 @@ def test_the_lit_stage_says_which_start_it_trained_from():
     ) in lines
     lit["start_maps"] = None  # the start's own maps, by their class: nothing more said
     assert "from every other map" not in format_report(report)
+    assert "from its class's maps" not in format_report(report)
+    lit["other_starts_left_out"] = True  # the time held the stage, not the other starts' scoring
+    assert (
+        "lit (protocol 2): normal and data maps trained through lit views, from its class's maps "
+        "(the time left held no scoring of other starts), 10 steps (best at step 0), stopped by "
+        "time budget; shipped start"
+    ) in format_report(report).splitlines()

@@ -118,6 +118,8 @@ class LitFacts:
         backtracks: times the maps went back to the best.
         start_maps: the other start trained from, where it ranked above the given one
             (:class:`LitRun`'s ``other_starts``); None: the given one.
+        other_starts_left_out: the other starts were not scored: the budget held the run's
+            least cost but not their scoring on top.
     """
 
     steps: int = 0
@@ -131,6 +133,23 @@ class LitFacts:
     validation_views: int = 0
     backtracks: int = 0
     start_maps: str | None = None
+    other_starts_left_out: bool = False
+
+
+@dataclass(frozen=True)
+class LitPrice:
+    """What a :class:`LitRun` costs at least, in seconds, priced from its first validation view
+    (:meth:`LitRun.price`).
+
+    Attributes:
+        least: caching every validation view, scoring the start and the baselines on each,
+            and :data:`LEAST_STEPS` steps (:func:`least_seconds`).
+        other_starts: scoring the other starts on every validation view: the run leaves them
+            out where its time holds ``least`` but not both.
+    """
+
+    least: float
+    other_starts: float
 
 
 class LitMaps:
@@ -260,6 +279,7 @@ class LitRun:
         evaluation = replace(evaluation, reference_max_size=None)
         self.settings = settings
         self.other_starts = dict(other_starts or {})
+        self.priced: LitPrice | None = None
         renderer = Renderer(original, device, evaluation)
         self.device = renderer.device
         scene = LitScene(renderer)
@@ -267,6 +287,7 @@ class LitRun:
         self.train_from(start)
         sizes = map_sizes(self.maps.fixed)
         self.sets = validation_sets(scene, reference, sizes, settings.validation_views)
+        self.baselines = dict(baselines)
         self.candidates = {"start": start, **baselines}
         self.scores: dict[str, Scores] = {}
         self.floor = Floor({}, SET_NAMES)
@@ -278,10 +299,12 @@ class LitRun:
         self.pool = LitViews(training_scene, reference, sizes, cameras)
         self.facts = LitFacts(validation_views=settings.validation_views)
 
-    def least_cost(self, clock: Clock) -> float:
-        """Cache the first Q view and time it and the start's score there (on ``clock``): the
-        least this run costs (:func:`least_seconds`), caching every validation view, scoring
-        every candidate on them and :data:`LEAST_STEPS` steps."""
+    def price(self, clock: Clock) -> LitPrice:
+        """What this run costs (:class:`LitPrice`), on ``clock``: the first call caches the
+        first Q view and times it and the start's score there; later calls return that
+        price, so whoever decides on it and the run itself read the same one."""
+        if self.priced is not None:
+            return self.priced
         q = self.sets["Q"]
         began = clock.now()
         q.cache_next()
@@ -290,8 +313,31 @@ class LitRun:
         q.psnr(lit_materials(self.candidates["start"], self.device, encoded=False), count=1)
         score_seconds = clock.now() - began
         views = sum(len(v.cameras) for v in self.sets.values())
-        scored = len(self.candidates) + len(self.other_starts)
-        return least_seconds(view_seconds, score_seconds, views, scored, self.settings)
+        scored = len(self.candidates)
+        least = least_seconds(view_seconds, score_seconds, views, scored, self.settings)
+        others = views * score_seconds * len(self.other_starts)
+        self.priced = LitPrice(least, others)
+        return self.priced
+
+    def affords(self, budget: Budget) -> bool:
+        """Whether ``budget`` holds the least this run costs (:meth:`price`; any run without
+        a limit); where it does not hold the other starts' scoring on top, they are left out
+        and the given start is trained."""
+        if not budget.limited:
+            return True
+        price, left = self.price(budget.clock), budget.left()
+        if self.other_starts and price.least + price.other_starts > left:
+            self.other_starts, self.facts.other_starts_left_out = {}, True
+        return price.least <= left
+
+    def restart(self, start: TexturedMesh, other_starts: Mapping[str, TexturedMesh]) -> None:
+        """Train from ``start`` (maps of the sizes this run was built for) and weigh
+        ``other_starts`` in place of the ones given so far; the views cached and the price
+        stay."""
+        self.candidates["start"] = start
+        self.other_starts = dict(other_starts)
+        self.trained = start
+        self.train_from(start)
 
     def begin(self) -> None:
         """Cache the validation views, score the start and the baselines, set the floor, and
@@ -403,16 +449,26 @@ def optimize_lit(
     ``other_starts``: ``start`` with other trained maps; training starts from the best-ranked
     (:class:`LitRun`).
     """
-    clock = budget.clock
     evaluation = evaluation or Evaluation()
     run = LitRun(original, start, baselines, settings, device, evaluation, other_starts)
-    facts = run.facts
+    return train(run, budget, controller, progress)
+
+
+def train(
+    run: LitRun,
+    budget: Budget,
+    controller: Controller | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[TexturedMesh, LitFacts]:
+    """:func:`optimize_lit` on a built run (one priced before, :meth:`LitRun.price`, keeps
+    its price and its cached view)."""
+    clock, settings, facts = budget.clock, run.settings, run.facts
     if not run.maps.values:
         facts.stopped_by, facts.clears_floor = "nothing to train", False
-        return start, facts
-    if budget.limited and not budget.fits(run.least_cost(clock)):
+        return run.candidates["start"], facts
+    if not run.affords(budget):
         facts.stopped_by, facts.clears_floor = NOT_AFFORDED, False
-        return start, facts
+        return run.candidates["start"], facts
     run.begin()
     step_seconds = validation_seconds = 0.0
     caching_end = clock.now() + settings.caching_share * budget.left()

@@ -41,6 +41,7 @@ from geoscaler.methods import (
     run_method,
 )
 from geoscaler.optim.events import Controller, ProgressEvent
+from geoscaler.optim.lit import LitRun
 from geoscaler.optim.validation import MIN_FROZEN, Validation, validation_view_sets
 from geoscaler.pipeline.arguments import (
     check_distances,
@@ -260,12 +261,14 @@ class _MethodRuns:
             self.renderer.reference_textures()  # made once, before a view is priced
             if not learned_fits(validation, seconds, reserve):
                 return not_run(name, outputs, seconds)
-        lit_seconds, price = 0.0, 0.0
+        lit_seconds, stage = 0.0, None
         if lit and seconds is not None:
+            price = 0.0
             if budget is not None:
                 began = clock.now()
-                price = self._lit_price(rule, outputs)
-                seconds -= clock.now() - began  # the priced view is spent, not the stage's
+                stage = self._lit_stage(rule, outputs)
+                price = stage.priced.least if stage.priced else 0.0
+                seconds -= clock.now() - began  # the stage's first view, cached, is its own
             after = validation.seconds_needed(0, caching=False)  # the stage's budget keeps it
             lit_seconds = lit_share(seconds, price + after)
         reserve_after = reserve + lit_seconds  # the lit stage's time follows the method
@@ -282,25 +285,25 @@ class _MethodRuns:
         result = no_worse_than_filters(name, result, validation, outputs)
         if lit and result.uvs is None:
             after = validation.seconds_needed(0, caching=False)
-            stage = Budget(clock, method_start, seconds, reserve + after)
+            stage_budget = Budget(clock, method_start, seconds, reserve + after)
             what = f"{name} x{rule.label}: lit views, seconds"
             result = train_lit(
-                self.mesh, self._plan(rule), name, result, outputs.get("lanczos"), stage,
+                self.mesh, self._plan(rule), name, result, outputs.get("lanczos"), stage_budget,
                 str(self.renderer.device), self.options.seed, self.options.steps, self.controller,
                 lambda done, total: self.observer.stage(what, done, total),
-                self.renderer.evaluation, price,
+                self.renderer.evaluation, stage,
             )  # fmt: skip
         return result
 
     def _plan(self, rule: SizeRule) -> SizePlan:
         return self.plan or SizePlan(rule, rule, rule)
 
-    def _lit_price(self, rule: SizeRule, outputs: dict[str, MethodResult]) -> float:
-        """The lit stage's least cost at ``rule``, in seconds
-        (:func:`~geoscaler.pipeline.lit.lit_stage_price`)."""
+    def _lit_stage(self, rule: SizeRule, outputs: dict[str, MethodResult]) -> LitRun:
+        """The lit stage at ``rule``, priced (:func:`~geoscaler.pipeline.lit.lit_stage_price`)."""
         device, evaluation = str(self.renderer.device), self.renderer.evaluation
-        lanczos = outputs.get("lanczos")
-        return lit_stage_price(self.mesh, self._plan(rule), lanczos, self.clock, device, evaluation)
+        lanczos, options = outputs.get("lanczos"), self.options
+        return lit_stage_price(self.mesh, self._plan(rule), lanczos, self.clock, device,
+                               evaluation, options.seed, options.steps)  # fmt: skip
 
     def finish(self) -> Comparison:
         """The rows with their gains over bicubic, ordered by distance, scale, then the

@@ -24,7 +24,7 @@ from geoscaler.optim.lit import (
     LitFacts,
     LitRun,
     LitSettings,
-    optimize_lit,
+    train,
 )
 from geoscaler.pipeline.shipping import every_map_by, ship_asset
 from geoscaler.protocol import Evaluation
@@ -76,37 +76,52 @@ def lit_stage_price(
     clock: Clock,
     device: str | None,
     evaluation: Evaluation | None = None,
-) -> float:
-    """What the lit stage costs at least on ``mesh``, in seconds on ``clock``
-    (:meth:`~geoscaler.optim.lit.LitRun.least_cost`: one lit view cached and one score timed
-    here, the rest priced from them, as the stage's own check does; 0 where it would train
-    nothing), priced before the method runs on the class filters' asset in place of its
-    result (the same maps, sizes and candidates)."""
+    seed: int = 0,
+    steps: int | None = None,
+) -> LitRun:
+    """The lit stage, priced before the method runs (:meth:`~geoscaler.optim.lit.LitRun.price`,
+    on ``clock``: one lit view cached and one score timed, the rest priced from them; not
+    priced where it would train nothing) on the class filters' asset in place of the method's
+    result (the same maps, sizes and baselines). :func:`train_lit` trains this run, its view
+    and its price kept, from the method's result."""
+    baselines = _baselines(mesh, plan, lanczos)
     textures = lanczos.textures if lanczos else None
-    start, others, baselines = _candidates(mesh, plan, textures, lanczos)
-    settings = LitSettings(kept=KEPT)
-    run = LitRun(mesh, start, baselines, settings, device, evaluation or Evaluation(), others)
-    return run.least_cost(clock) if run.maps.values else 0.0
+    start, others = _starts(mesh, plan, textures, baselines)
+    run = LitRun(mesh, start, baselines, _settings(seed, steps), device,
+                 evaluation or Evaluation(), others)  # fmt: skip
+    if run.maps.values:
+        run.price(clock)
+    return run
 
 
-def _candidates(
-    mesh: TexturedMesh,
-    plan: SizePlan,
-    textures: list | None,
-    lanczos: MethodResult | None,
-) -> tuple[TexturedMesh, dict[str, TexturedMesh], dict[str, TexturedMesh]]:
-    """The lit stage's start (``textures`` as base colours, every other map by its class;
-    None: bicubic's), its other starts (the same base colours, every other map by Lanczos,
-    by bicubic: a class's filter is not the best on every asset's lit views) and its baselines
-    (every map by Lanczos, by bicubic, and the class filters where there is a Lanczos
-    result)."""
+def _settings(seed: int, steps: int | None) -> LitSettings:
+    return LitSettings(steps=steps, seed=seed, kept=KEPT)
+
+
+def _baselines(
+    mesh: TexturedMesh, plan: SizePlan, lanczos: MethodResult | None
+) -> dict[str, TexturedMesh]:
+    """The lit stage's baselines: every map by Lanczos, by bicubic, and the class filters
+    where there is a Lanczos result."""
     baselines = {f: every_map_by(mesh, plan, f) for f in EVERY_MAP}
     if lanczos is not None:
         baselines[CLASS_FILTERS] = ship_asset(mesh, plan, lanczos.textures, "lanczos")[0]
+    return baselines
+
+
+def _starts(
+    mesh: TexturedMesh,
+    plan: SizePlan,
+    textures: list | None,
+    baselines: dict[str, TexturedMesh],
+) -> tuple[TexturedMesh, dict[str, TexturedMesh]]:
+    """The lit stage's start (``textures`` as base colours, every other map by its class;
+    None: bicubic's) and its other starts (the same base colours, every other map by Lanczos,
+    by bicubic: a class's filter is not the best on every asset's lit views)."""
     if textures is None:
-        return baselines["bicubic"], {}, baselines
+        return baselines["bicubic"], {}
     others = {f: _with_maps_of(mesh, plan, textures, baselines[f]) for f in EVERY_MAP}
-    return ship_asset(mesh, plan, textures, "direct")[0], others, baselines
+    return ship_asset(mesh, plan, textures, "direct")[0], others
 
 
 def _with_maps_of(
@@ -135,12 +150,11 @@ def train_lit(
     controller: Controller | None = None,
     progress: Callable[[int, int], None] | None = None,
     evaluation: Evaluation | None = None,
-    price: float = 0.0,
+    stage: LitRun | None = None,
 ) -> MethodResult:
     """``result`` (in the mesh's own layout) after the lit stage: its base colours and the
     maps the stage chose (:attr:`MethodResult.maps`), with :attr:`MethodResult.lit`. Where
-    ``budget`` cannot hold ``price``, the stage's least cost (:func:`lit_stage_price`),
-    nothing is done and the facts say so.
+    ``budget`` cannot hold the stage's least cost, nothing is done and the facts say so.
 
     Args:
         mesh: the original asset.
@@ -157,17 +171,22 @@ def train_lit(
         controller: stops the stage (its best so far ships) or pauses it.
         progress: ``progress(done, total)`` after each step (:func:`optimize_lit`).
         evaluation: the validation views' size (default: the protocol's).
-        price: the stage's least cost, priced before (0: unknown, the stage's own check
-            on its first view decides).
+        stage: the stage priced before the method ran (:func:`lit_stage_price`, built with
+            the same ``lanczos``, ``seed`` and ``steps``): trained from ``result`` on its
+            price and its cached view; None: built here and priced on its first view.
     """
-    if budget.limited and not budget.fits(price):
+    priced = stage.priced if stage is not None else None
+    if budget.limited and priced is not None and not budget.fits(priced.least):
         return replace(result, lit=LitFacts(stopped_by=NOT_AFFORDED, clears_floor=False))
-    start, others, baselines = _candidates(mesh, plan, result.textures, lanczos)
-    steps = steps or (None if budget.limited else LIT_STEPS)
-    settings = LitSettings(steps=steps, seed=seed, kept=KEPT)
-    best, facts = optimize_lit(
-        mesh, start, baselines, budget, settings, device, controller, progress, evaluation, others
-    )
+    if stage is None:
+        baselines = _baselines(mesh, plan, lanczos)
+        start, others = _starts(mesh, plan, result.textures, baselines)
+        settings = _settings(seed, steps or (None if budget.limited else LIT_STEPS))
+        stage = LitRun(mesh, start, baselines, settings, device, evaluation or Evaluation(),
+                       others)  # fmt: skip
+    else:
+        stage.restart(*_starts(mesh, plan, result.textures, stage.baselines))
+    best, facts = train(stage, budget, controller, progress)
     if not facts.validation_scores:  # not run: the maps ship by their class, as unlit
         return replace(result, lit=facts)
     how = {

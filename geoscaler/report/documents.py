@@ -391,6 +391,8 @@ def _lit_lines(lit: dict[str, Any] | None) -> list[str]:
     start, started = lit.get("start_maps"), ""
     if start:
         started = f", from every other map by {start} (it validated above its class's filter)"
+    elif lit.get("other_starts_left_out"):
+        started = ", from its class's maps (the time left held no scoring of other starts)"
     return [
         f"lit (protocol 2): normal and data maps trained through lit views{started}, "
         f"{lit['steps']} steps (best at step {lit['best_step']}), stopped by "
