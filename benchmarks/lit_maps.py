@@ -276,6 +276,8 @@ def main() -> int:
     parser.add_argument("--figure", type=Path, help="folder for a lit picture per mesh")
     args = parser.parse_args()
     paths = args.meshes or [DATA / entry for entry in PBR_MESHES]
+    if args.figure is not None:  # made first: a missing folder must not end a long run late
+        args.figure.mkdir(parents=True, exist_ok=True)
     table = []
     for path in paths:
         if not path.exists():
