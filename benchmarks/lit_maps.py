@@ -152,7 +152,10 @@ def lit_stage(report: dict) -> str:
     if not lit["validation_scores"]:
         return f"lit stage not run ({lit['stopped_by']})"
     start = lit.get("start_maps") or "class"
-    return f"lit stage shipped {lit['shipped']}, from {start} maps, {lit['steps']} steps"
+    weighed = " (other starts left out)" if lit.get("other_starts_left_out") else ""
+    return (
+        f"lit stage shipped {lit['shipped']}, from {start} maps{weighed}, {lit['steps']} steps"
+    )
 
 
 def unlit_psnr(original: TexturedMesh, candidate: TexturedMesh, cameras: list[Camera]) -> float:

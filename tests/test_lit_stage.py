@@ -4,7 +4,6 @@ stage after ``direct``."""
 from __future__ import annotations
 
 import json
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -18,7 +17,6 @@ from geoscaler.optim.lit import (
     NOT_AFFORDED,
     TRAINED,
     LitMaps,
-    LitPrice,
     LitSettings,
     optimize_lit,
 )
@@ -194,6 +192,11 @@ def test_a_stopped_controller_or_a_spent_budget_takes_no_step(mesh):
     assert not facts.validation_scores and not facts.clears_floor
 
 
+SHARES = 2 * 1.0 + 2 * (2.4 / 1.5) ** 2 + 2 * (2.4 / 4.0) ** 2
+"""Two views a set counted by their screen share against a Q view's (Q at 2.4, near guards
+at 1.5, far ones at 4.0): 7.84."""
+
+
 class SlowClock(ManualClock):
     """A clock that moves a second every time it is read: every view, score and step costs
     one second, whatever the machine."""
@@ -206,9 +209,10 @@ class SlowClock(ManualClock):
 def test_the_loop_runs_only_where_the_budget_holds_its_set_up_and_a_few_steps(mesh):
     start = flat_start(mesh)
     settings = LitSettings(validation_views=2, pool_views=4, views_per_step=2)
-    # 2 + 2 + 2 views, each with the start scored there: 6 x (1 + 1) s, and 5 steps of 2 views
+    # 2 + 2 + 2 views by their screen share, each with the start scored there: 7.84 x (1 + 1)
+    # s, and 5 steps of 2 views: 25.68 s
     clock = SlowClock()
-    _, facts = optimize_lit(mesh, start, {}, Budget(clock, clock.now(), 20.0), settings,
+    _, facts = optimize_lit(mesh, start, {}, Budget(clock, clock.now(), 25.0), settings,
                             "cpu", evaluation=QUICK)  # fmt: skip
     assert facts.stopped_by == NOT_AFFORDED
     clock = SlowClock()
@@ -313,12 +317,22 @@ def test_a_lit_run_is_priced_once_and_decides_on_that_price(mesh):
     run = LitRun(mesh, flat_start(mesh), {}, settings, "cpu", QUICK)
     clock = SlowClock()  # one second a reading: the view cached and the start's score, 1 s each
     price = run.price(clock)
-    assert price.least == least_seconds(1.0, 1.0, 6, 1, settings) == 6 * 2 + LEAST_STEPS * 2
+    assert price.least == least_seconds(1.0, 1.0, SHARES, 1, settings)
+    assert price.least == pytest.approx(SHARES * 2 + LEAST_STEPS * 2)  # 25.68 s
     readings = clock.now()
     assert run.price(clock) is price and clock.now() == readings + 1.0  # not priced again
     assert len(run.sets["Q"]) == 1  # its first view stays cached for the run
-    _, facts = train(run, Budget(clock, clock.now(), 21.0))  # 22 s do not hold it
+    _, facts = train(run, Budget(clock, clock.now(), 25.0))  # 26 s do not hold it
     assert facts.stopped_by == NOT_AFFORDED
+
+
+def test_views_are_priced_by_the_screen_the_object_fills_in_them():
+    from geoscaler.optim.lit import screen_shares
+    from geoscaler.render.cameras import Camera
+
+    timed = Camera((0.0, 0.0, 1.0), 2.4)
+    halfway, twice = Camera((1.0, 0.0, 0.0), 1.2), Camera((0.0, 1.0, 0.0), 4.8)
+    assert screen_shares([timed, halfway, twice], timed) == 1 + 4 + 0.25
 
 
 def test_the_other_starts_are_weighed_only_where_the_time_holds_them_on_top(mesh):
@@ -326,16 +340,46 @@ def test_the_other_starts_are_weighed_only_where_the_time_holds_them_on_top(mesh
 
     settings = LitSettings(steps=1, validation_views=2, pool_views=4, views_per_step=2)
     others = {"lanczos": every_map_by(mesh, PLAN, "lanczos")}
-    # least 6 x (1 + 1) + 5 x 2 = 22 s; the other start's scoring 6 x 1 s on top
-    for seconds, weighed in ((30.0, True), (25.0, False)):
+    # least 7.84 x (1 + 1) + 5 x 2 = 25.68 s; the other start's scoring 7.84 x 1 s on top
+    for seconds, weighed in ((35.0, True), (30.0, False)):
         run = LitRun(mesh, flat_start(mesh), {}, settings, "cpu", QUICK, others)
         clock = SlowClock()
         price = run.price(clock)
-        assert (price.least, price.other_starts) == (22.0, 6.0)
+        assert (price.least, price.other_starts) == pytest.approx((SHARES * 2 + 10, SHARES))
         _, facts = train(run, Budget(clock, clock.now(), seconds))
         assert facts.other_starts_left_out is not weighed
         assert facts.start_maps == ("lanczos" if weighed else None)
         assert facts.steps == 1
+
+
+def test_the_bound_under_the_price_counts_the_views_and_steps_at_an_unlit_views_cost(mesh):
+    from geoscaler.optim.lit import LEAST_STEPS, LitRun, least_seconds_bound
+
+    settings = LitSettings(validation_views=2, pool_views=4, views_per_step=2)
+    bound = least_seconds_bound(1.0, QUICK, settings)
+    assert bound == pytest.approx(SHARES * 1.0 + LEAST_STEPS * 2 * 1.0)
+    run = LitRun(mesh, flat_start(mesh), {}, settings, "cpu", QUICK)
+    assert bound < run.price(SlowClock()).least  # 1 s a view
+
+
+def test_a_lit_stage_whose_bound_exceeds_its_share_is_never_built(tmp_path, monkeypatch):
+    import geoscaler.pipeline.job as job
+    from geoscaler.cli import main
+    from geoscaler.optim.lit import LitRun
+
+    def unbuilt(*args, **kwargs):
+        raise AssertionError("a lit run was built")
+
+    monkeypatch.setattr(job, "least_seconds_bound", lambda view_seconds, evaluation: 1e6)
+    monkeypatch.setattr(LitRun, "__init__", unbuilt)
+    source = tmp_path / "pbr.glb"
+    save_mesh(pbr_demo(texture_size=64, subdivisions=6), source)
+    argv = ["downsample", str(source), "-o", str(tmp_path / "out.glb"), "--scale", "4",
+            "--steps", "4", "--time-budget", "300", "--device", "cpu", "--uv", "keep",
+            "--report", str(tmp_path / "r.json")]  # fmt: skip
+    assert main(argv, evaluation=QUICK) == 0
+    lit = json.loads((tmp_path / "r.json").read_text())["details"]["lit"]
+    assert lit["stopped_by"] == NOT_AFFORDED and lit["steps"] == 0
 
 
 def test_a_lit_share_too_short_for_the_stage_goes_to_the_method_before_it():
@@ -357,7 +401,6 @@ def test_a_lit_stage_the_time_left_cannot_hold_spends_nothing(mesh, monkeypatch)
     monkeypatch.setattr(lit_stage, "ship_asset", untouched)
     result = MethodResult([None])
     budget = Budget(ManualClock(), 0.0, 8.0)  # 8 s left for a stage priced at 8.8
-    stage = SimpleNamespace(priced=LitPrice(least=8.8, other_starts=1.0))
-    out = lit_stage.train_lit(mesh, PLAN, "direct", result, None, budget, "cpu", stage=stage)
+    out = lit_stage.train_lit(mesh, PLAN, "direct", result, None, budget, "cpu", price=8.8)
     assert out.lit.stopped_by == NOT_AFFORDED and not out.lit.clears_floor
     assert out.textures == result.textures

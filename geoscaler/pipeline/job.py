@@ -41,7 +41,7 @@ from geoscaler.methods import (
     run_method,
 )
 from geoscaler.optim.events import Controller, ProgressEvent
-from geoscaler.optim.lit import LitRun
+from geoscaler.optim.lit import LitRun, least_seconds_bound
 from geoscaler.optim.validation import MIN_FROZEN, Validation, validation_view_sets
 from geoscaler.pipeline.arguments import (
     check_distances,
@@ -261,15 +261,17 @@ class _MethodRuns:
             self.renderer.reference_textures()  # made once, before a view is priced
             if not learned_fits(validation, seconds, reserve):
                 return not_run(name, outputs, seconds)
-        lit_seconds, stage = 0.0, None
+        lit_seconds, stage, price = 0.0, None, 0.0
         if lit and seconds is not None:
-            price = 0.0
-            if budget is not None:
-                began = clock.now()
-                stage = self._lit_stage(rule, outputs)
-                price = stage.priced.least if stage.priced else 0.0
-                seconds -= clock.now() - began  # the stage's first view, cached, is its own
             after = validation.seconds_needed(0, caching=False)  # the stage's budget keeps it
+            if budget is not None:
+                # learned_fits timed the unlit view of Q's first camera, the one priced lit
+                price = least_seconds_bound(validation.view_cost, self.renderer.evaluation)
+                if lit_share(seconds, price + after):  # else no lit view is worth pricing
+                    began = clock.now()
+                    stage = self._lit_stage(rule, outputs)
+                    price = stage.priced.least if stage.priced else 0.0
+                    seconds -= clock.now() - began  # the stage's first view, cached, is its own
             lit_seconds = lit_share(seconds, price + after)
         reserve_after = reserve + lit_seconds  # the lit stage's time follows the method
         # A new layout is not trained lit: its re-bake takes the lit stage's time first.
@@ -291,7 +293,7 @@ class _MethodRuns:
                 self.mesh, self._plan(rule), name, result, outputs.get("lanczos"), stage_budget,
                 str(self.renderer.device), self.options.seed, self.options.steps, self.controller,
                 lambda done, total: self.observer.stage(what, done, total),
-                self.renderer.evaluation, stage,
+                self.renderer.evaluation, stage, price,
             )  # fmt: skip
         return result
 

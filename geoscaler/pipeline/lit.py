@@ -151,6 +151,7 @@ def train_lit(
     progress: Callable[[int, int], None] | None = None,
     evaluation: Evaluation | None = None,
     stage: LitRun | None = None,
+    price: float = 0.0,
 ) -> MethodResult:
     """``result`` (in the mesh's own layout) after the lit stage: its base colours and the
     maps the stage chose (:attr:`MethodResult.maps`), with :attr:`MethodResult.lit`. Where
@@ -174,9 +175,11 @@ def train_lit(
         stage: the stage priced before the method ran (:func:`lit_stage_price`, built with
             the same ``lanczos``, ``seed`` and ``steps``): trained from ``result`` on its
             price and its cached view; None: built here and priced on its first view.
+        price: the stage's least cost as priced, or a bound under it
+            (:func:`~geoscaler.optim.lit.least_seconds_bound`), before the method ran (0:
+            not known): where ``budget`` cannot hold it, nothing is built or priced.
     """
-    priced = stage.priced if stage is not None else None
-    if budget.limited and priced is not None and not budget.fits(priced.least):
+    if budget.limited and not budget.fits(price):
         return replace(result, lit=LitFacts(stopped_by=NOT_AFFORDED, clears_floor=False))
     if stage is None:
         baselines = _baselines(mesh, plan, lanczos)
