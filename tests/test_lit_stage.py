@@ -255,8 +255,21 @@ def test_downsample_under_protocol_2_ships_every_map_trained_lit(tmp_path, capsy
     assert shipped.materials[0].maps[NORMAL].shape[:2] == (16, 16)
 
 
-def test_under_a_time_budget_the_job_trains_the_lit_run_it_priced(tmp_path, monkeypatch):
+def budgeted_lit_stage(folder) -> dict:
+    """The report's lit stage of ``downsample`` on a small PBR asset, 4 steps, with a time
+    budget (the job prices the stage under a budget only)."""
     from geoscaler.cli import main
+
+    source = folder / "pbr.glb"
+    save_mesh(pbr_demo(texture_size=64, subdivisions=6), source)
+    argv = ["downsample", str(source), "-o", str(folder / "out.glb"), "--scale", "4",
+            "--steps", "4", "--time-budget", "300", "--device", "cpu", "--uv", "keep",
+            "--report", str(folder / "r.json")]  # fmt: skip
+    assert main(argv, evaluation=QUICK) == 0
+    return json.loads((folder / "r.json").read_text())["details"]["lit"]
+
+
+def test_under_a_time_budget_the_job_trains_the_lit_run_it_priced(tmp_path, monkeypatch):
     from geoscaler.optim.lit import LitRun
 
     built, build = [], LitRun.__init__
@@ -266,13 +279,7 @@ def test_under_a_time_budget_the_job_trains_the_lit_run_it_priced(tmp_path, monk
         build(self, *args, **kwargs)
 
     monkeypatch.setattr(LitRun, "__init__", counted)
-    source = tmp_path / "pbr.glb"
-    save_mesh(pbr_demo(texture_size=64, subdivisions=6), source)
-    argv = ["downsample", str(source), "-o", str(tmp_path / "out.glb"), "--scale", "4",
-            "--steps", "4", "--time-budget", "300", "--device", "cpu", "--uv", "keep",
-            "--report", str(tmp_path / "r.json")]  # fmt: skip
-    assert main(argv, evaluation=QUICK) == 0
-    lit = json.loads((tmp_path / "r.json").read_text())["details"]["lit"]
+    lit = budgeted_lit_stage(tmp_path)
     assert lit["steps"] == 4 and not lit["other_starts_left_out"]
     assert len(built) == 1  # priced before direct, then trained from direct's result
 
@@ -364,7 +371,6 @@ def test_the_bound_under_the_price_counts_the_views_and_steps_at_an_unlit_views_
 
 def test_a_lit_stage_whose_bound_exceeds_its_share_is_never_built(tmp_path, monkeypatch):
     import geoscaler.pipeline.job as job
-    from geoscaler.cli import main
     from geoscaler.optim.lit import LitRun
 
     def unbuilt(*args, **kwargs):
@@ -372,13 +378,7 @@ def test_a_lit_stage_whose_bound_exceeds_its_share_is_never_built(tmp_path, monk
 
     monkeypatch.setattr(job, "least_seconds_bound", lambda view_seconds, evaluation: 1e6)
     monkeypatch.setattr(LitRun, "__init__", unbuilt)
-    source = tmp_path / "pbr.glb"
-    save_mesh(pbr_demo(texture_size=64, subdivisions=6), source)
-    argv = ["downsample", str(source), "-o", str(tmp_path / "out.glb"), "--scale", "4",
-            "--steps", "4", "--time-budget", "300", "--device", "cpu", "--uv", "keep",
-            "--report", str(tmp_path / "r.json")]  # fmt: skip
-    assert main(argv, evaluation=QUICK) == 0
-    lit = json.loads((tmp_path / "r.json").read_text())["details"]["lit"]
+    lit = budgeted_lit_stage(tmp_path)
     assert lit["stopped_by"] == NOT_AFFORDED and lit["steps"] == 0
 
 
