@@ -369,6 +369,23 @@ def test_the_bound_under_the_price_counts_the_views_and_steps_at_an_unlit_views_
     assert bound < run.price(SlowClock()).least  # 1 s a view
 
 
+def test_a_priced_stage_refused_its_share_is_not_held_through_the_method(tmp_path, monkeypatch):
+    import geoscaler.pipeline.job as job
+
+    given, train_lit = [], job.train_lit
+
+    def recorded(*args):
+        given.append(args[-2])  # the priced stage, or None
+        return train_lit(*args)
+
+    shares = iter([10.0, 0.0])  # the bound fits its share, the price found then does not
+    monkeypatch.setattr(job, "lit_share", lambda seconds, price: next(shares))
+    monkeypatch.setattr(job, "train_lit", recorded)
+    lit = budgeted_lit_stage(tmp_path)
+    assert given == [None]  # priced, refused: the method ran without it in memory
+    assert lit["steps"] == 4  # the time left after the method's 4 steps held a stage built anew
+
+
 def test_a_lit_stage_whose_bound_exceeds_its_share_is_never_built(tmp_path, monkeypatch):
     import geoscaler.pipeline.job as job
     from geoscaler.optim.lit import LitRun

@@ -273,6 +273,8 @@ class _MethodRuns:
                     price = stage.priced.least if stage.priced else 0.0
                     seconds -= clock.now() - began  # the stage's first view, cached, is its own
             lit_seconds = lit_share(seconds, price + after)
+            if not lit_seconds:  # not held through the method: built again only if time is left
+                stage = None
         reserve_after = reserve + lit_seconds  # the lit stage's time follows the method
         # A new layout is not trained lit: its re-bake takes the lit stage's time first.
         relayout = 0.0 if budget is None else max(budget.relayout - lit_seconds, 0.0)
