@@ -262,9 +262,17 @@ def least_seconds_bound(
     view costs less than ``view_seconds`` for the first Q camera (the unlit view of that
     camera: a lit one rasterises the same samples, renders the original's every map and taps
     more maps): its views and steps, the scoring left out."""
-    sets = validation_set_cameras(evaluation, settings.validation_views)
-    cameras = [camera for name in SET_NAMES for camera in sets[name][: settings.validation_views]]
+    sets = lit_set_cameras(evaluation, settings.validation_views)
+    cameras = [camera for name in SET_NAMES for camera in sets[name]]
     return least_seconds(view_seconds, 0.0, screen_shares(cameras, sets["Q"][0]), 0, settings)
+
+
+def lit_set_cameras(evaluation: Evaluation, count: int) -> dict[str, list[Camera]]:
+    """The lit Q, near and far sets' cameras: the unlit loop's
+    (:func:`~geoscaler.optim.validation_views.validation_set_cameras`), ``count`` guards at
+    each distance and Q's first ``count`` in its spread order."""
+    cameras = validation_set_cameras(evaluation, count)
+    return {name: cameras[name][:count] for name in SET_NAMES}
 
 
 def validation_sets(
@@ -273,11 +281,9 @@ def validation_sets(
     sizes: Sequence[set[tuple[int, int]]],
     count: int,
 ) -> dict[str, LitViews]:
-    """The lit Q, near and far sets, none cached yet: the unlit loop's cameras
-    (:func:`~geoscaler.optim.validation_views.validation_set_cameras`), ``count`` guards at
-    each distance and Q's first ``count`` in its spread order."""
-    cameras = validation_set_cameras(scene.renderer.evaluation, count)
-    return {name: LitViews(scene, reference, sizes, cameras[name][:count]) for name in SET_NAMES}
+    """The lit Q, near and far sets (:func:`lit_set_cameras`), none cached yet."""
+    cameras = lit_set_cameras(scene.renderer.evaluation, count)
+    return {name: LitViews(scene, reference, sizes, cameras[name]) for name in SET_NAMES}
 
 
 class LitRun:
