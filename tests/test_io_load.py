@@ -487,7 +487,9 @@ def test_obj_and_mtl_that_start_with_a_byte_order_mark_load(tmp_path):
     np.testing.assert_array_equal(mesh.materials[0].base_color_texture, TEXTURE)
 
 
-def test_trimesh_is_imported_only_when_an_obj_is_read(tmp_path: Path):
+def test_reading_a_mesh_imports_no_mesh_library(tmp_path: Path):
+    """OBJ and glTF are read by the project's own readers: importing trimesh cost 0.7 to
+    1.0 s of every OBJ job."""
     save_mesh(demo_mesh(subdivisions=1, texture_size=8), tmp_path / "mesh.glb")
     obj = write_obj_asset(tmp_path)
     probe = (
@@ -495,10 +497,9 @@ def test_trimesh_is_imported_only_when_an_obj_is_read(tmp_path: Path):
         "from geoscaler.io import load_mesh\n"
         "import geoscaler.report.runner\n"
         "load_mesh(sys.argv[1])\n"
-        "print('trimesh' in sys.modules, end=' ')\n"
         "load_mesh(sys.argv[2])\n"
         "print('trimesh' in sys.modules)\n"
     )
     command = [sys.executable, "-c", probe, str(tmp_path / "mesh.glb"), str(obj)]
     done = subprocess.run(command, capture_output=True, text=True, check=True)
-    assert done.stdout == "False True\n"
+    assert done.stdout == "False\n"

@@ -2,11 +2,12 @@
 
 Reading: the MTL libraries are parsed here (colours, dissolve, every map of
 :data:`geoscaler.io.slots.MTL_MAPS` with its options, other scalar statements), each map
-resolved inside the mesh's folder and decoded once however many materials show it; trimesh
-reads the geometry and groups faces by material name. Writing: MTL holds base colour, normal
-and emissive maps and its own (``map_Ks``, ``map_Ns``, ``map_d``...), each with the keyword
-and options it was read with; ``map_Kd`` is the colour, so a base-colour factor other than 1
-is baked into the written texture by :mod:`geoscaler.io.save`.
+resolved inside the mesh's folder and decoded once however many materials show it;
+:mod:`geoscaler.io.obj_geometry` reads the triangles and groups them by material name.
+Writing: MTL holds base colour, normal and emissive maps and its own (``map_Ks``, ``map_Ns``,
+``map_d``...), each with the keyword and options it was read with; ``map_Kd`` is the colour,
+so a base-colour factor other than 1 is baked into the written texture by
+:mod:`geoscaler.io.save`.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from geoscaler.mesh import BASE_COLOR, Material, SourceImage, TexturedMesh
 
 from .assemble import MaterialBuilder, Part
 from .images import open_image, source_image
+from .obj_geometry import obj_parts
 from .paths import resolve_reference, side_file
 from .slots import MTL_KEYWORDS, MTL_MAPS, MTL_PREFIX, MTL_PROPERTIES
 
@@ -57,7 +59,6 @@ _MTL_OPTIONS = {
     "-blendu": 1, "-blendv": 1, "-boost": 1, "-mm": 2, "-o": 3, "-s": 3, "-t": 3,
     "-texres": 1, "-clamp": 1, "-bm": 1, "-imfchan": 1, "-type": 1, "-cc": 1,
 }  # fmt: skip
-_OBJ_TAG = "geoscaler_index"
 
 
 def load_obj(path: Path) -> tuple[list[Part], list[MaterialBuilder], list[Path]]:
@@ -75,18 +76,13 @@ def load_obj(path: Path) -> tuple[list[Part], list[MaterialBuilder], list[Path]]
     root = path.parent.resolve()
     data = path.read_bytes().removeprefix(codecs.BOM_UTF8)  # editors on Windows write one
     text = _decode_text(data)
-    _check_face_indices(text, path)
     libraries = _obj_libraries(text, path, root)
     entries: dict[str, _MtlEntry] = {}
     for library in libraries:
         for entry in _parse_mtl(library, root):
             entries[entry.name] = entry
     ordered = list(entries.values())
-    # trimesh only needs the names to group faces; a tag tells its materials apart.
-    names_only = "".join(f"newmtl {e.name}\n{_OBJ_TAG} {i}\n" for i, e in enumerate(ordered))
-    from .obj_geometry import obj_parts  # imports trimesh: only when an OBJ is read
-
-    parts = obj_parts(data, names_only, _obj_material_index)
+    parts = obj_parts(text, {entry.name: i for i, entry in enumerate(ordered)}, path)
     decoded: dict[Path, tuple[SourceImage, bool]] = {}  # per file: its image, whether grey
     builders = [lambda e=entry: _obj_material(e, decoded) for entry in ordered]
     files = [path.resolve(), *libraries, *(f for e in ordered for f, _ in e.maps.values())]
@@ -99,63 +95,6 @@ def _decode_text(data: bytes) -> str:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError:
         return data.decode("latin-1")
-
-
-_ELEMENTS = {"v": "vertex", "vt": "texture coordinate", "vn": "normal"}
-
-
-def _check_face_indices(text: str, path: Path) -> None:
-    """Refuse a face corner that is not an index, is 0 or points past its list.
-
-    OBJ indices start at 1; negative ones count back from the last element defined before
-    the face. trimesh would read an index of 0 as the last element and one past the end as
-    another face's vertex.
-    """
-    lines = text.splitlines()
-    totals = dict.fromkeys(_ELEMENTS, 0)
-    for line in lines:
-        head = line.split(None, 1)[:1]
-        if head and head[0] in totals:
-            totals[head[0]] += 1
-    seen = dict.fromkeys(_ELEMENTS, 0)
-    for number, line in enumerate(lines, 1):
-        words = line.split()
-        if not words:
-            continue
-        if words[0] in seen:
-            seen[words[0]] += 1
-        elif words[0] == "f":
-            for corner in words[1:]:
-                _check_corner(corner, seen, totals, path, number)
-
-
-def _check_corner(corner: str, seen: dict, totals: dict, path: Path, number: int) -> None:
-    for kind, part in zip(_ELEMENTS, corner.split("/"), strict=False):
-        if not part:
-            continue
-        try:
-            index = int(part)
-        except ValueError:
-            index = None
-        if index is not None and 0 < index <= totals[kind]:
-            continue  # the common case, checked before any message is made
-        where = f"{path}: line {number}: face corner {corner!r}"
-        if index is None or index == 0:
-            raise GeoscalerError(
-                f"{where} is not a {_ELEMENTS[kind]} index (OBJ indices start at 1); "
-                "repair the file or re-export it"
-            )
-        count = totals[kind] if index > 0 else seen[kind]
-        if abs(index) > count:
-            raise GeoscalerError(
-                f"{where} refers to {_ELEMENTS[kind]} {index}, but the file defines "
-                f"{count}{'' if index > 0 else ' before it'}; repair the file or re-export it"
-            )
-
-
-def _obj_material_index(material: Any) -> int | None:
-    tag = (getattr(material, "kwargs", None) or {}).get(_OBJ_TAG)
-    return int(tag[0]) if tag else None
 
 
 def _obj_libraries(text: str, path: Path, root: Path) -> list[Path]:
