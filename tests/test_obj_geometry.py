@@ -147,6 +147,11 @@ def test_corners_of_mixed_forms_read_as_the_same_corners_written_alike():
         ("f 1/1 2/2 x/3", "face corner 'x/3' is not a vertex index"),
         ("f 1/1 2/2 5/3", "face corner '5/3' refers to vertex 5, but the file defines 4;"),
         ("f 1/1 2/2 -5/3", "face corner '-5/3' refers to vertex -5, but the file defines 4 before"),
+        (
+            "f 1/1 2/2 3/99999999999999999999",
+            "face corner '3/99999999999999999999' refers to "
+            "texture coordinate 99999999999999999999, but the file defines 4;",
+        ),
     ],
 )
 def test_a_bad_face_index_is_refused_with_its_line(face: str, message: str):

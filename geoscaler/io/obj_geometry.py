@@ -133,7 +133,7 @@ class _Statements:
         seen = np.repeat(np.asarray(self.seen, dtype=np.int64).reshape(-1, 3), self.sizes, axis=0)
         try:
             given = _corner_numbers(self.words)
-        except ValueError:  # a word that is not an index: found and named below
+        except (ValueError, OverflowError):  # not an index, or none that fits: named below
             given = None
         if given is not None:
             totals = np.array([len(arrays[k]) for k in ELEMENTS])
@@ -158,7 +158,8 @@ _COLUMNS = {0: [0], 1: [0, 1], 2: [0, 1, 2], 5: [0, 2]}
 def _corner_numbers(words: list[str]) -> np.ndarray:
     """``(K, 3)`` int64 indices as written (:data:`_ABSENT`: not given) of face corners;
     one conversion where every corner has one form and every number, else corner by corner.
-    Raises ``ValueError`` for a word that is not an index."""
+    Raises ``ValueError`` for a word that is not an index, ``OverflowError`` for one past
+    int64."""
     given = np.full((len(words), 3), _ABSENT, dtype=np.int64)
     if not words:
         return given
