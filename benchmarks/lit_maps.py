@@ -3,7 +3,7 @@ project's class filters with and without Toksvig roughness, and what `geoscaler 
 
 Usage:
     python benchmarks/lit_maps.py [MESH ...] [--scale 4 8] [--views 60] [--time-budget 60]
-        [--no-product] [--json out.json] [--figure DIR]
+        [--no-product] [--split] [--json out.json] [--figure DIR]
 
 Per mesh and scale, each candidate is scored against the full-resolution original under
 protocol 2 (PSNR-fg and SSIM-fg on Q, near and far) and under protocol 1 (unlit base colour,
@@ -22,6 +22,11 @@ PSNR-fg on Q), all from the same cameras:
   other maps by their class with Toksvig roughness), read back from the GLB it wrote;
 - ``downsample``: the same command as a user runs it (protocol 2 on these meshes: ``direct``,
   then every map trained through lit views, :mod:`geoscaler.pipeline.lit`), in the same run.
+
+With ``--split``, two more candidates say where ``maps+toksvig``'s lit error lives:
+``base colour at full size`` (the original's base colours, every other map by its class) and
+``maps at full size`` (the class base colours, every other map the original's). What one of
+them gains over ``maps+toksvig`` bounds what optimising that part alone could gain.
 
 With ``--figure DIR``: a lit picture per mesh and scale, ``DIR/lit_MESH_xS.png``: two near
 views of the original beside Lanczos-every-map and what ``downsample`` ships (zooms, error
@@ -108,6 +113,15 @@ def class_maps(mesh: TexturedMesh, scale: int, toksvig: bool = False) -> Texture
     ]
     shipped, _ = ship_asset(mesh, SizePlan(rule, rule, rule), bases, "lanczos", toksvig=toksvig)
     return shipped
+
+
+def full_size(original: TexturedMesh, mesh: TexturedMesh, base_colour: bool) -> TexturedMesh:
+    """``mesh`` with its base colours (``base_colour``) or its other maps as the original's."""
+    replacements = {}
+    for (before, places), (after, _) in zip(original.images(), mesh.images(), strict=True):
+        if (places[0][1] == BASE_COLOR) == base_colour:
+            replacements[id(after)] = before
+    return mesh.with_images(replacements)
 
 
 def as_jpeg(original: TexturedMesh, mesh: TexturedMesh) -> TexturedMesh:
@@ -223,7 +237,12 @@ def lit_figure(mesh: TexturedMesh, candidates: dict[str, TexturedMesh], title: s
 
 
 def score_mesh(
-    path: Path, scale: int, views: int, budget: float | None, figure: Path | None = None
+    path: Path,
+    scale: int,
+    views: int,
+    budget: float | None,
+    figure: Path | None = None,
+    split: bool = False,
 ) -> dict[str, Scores]:
     mesh = load_mesh(path)
     candidates = {
@@ -233,6 +252,9 @@ def score_mesh(
     maps = class_maps(mesh, scale)
     candidates["maps"] = maps
     candidates["maps+toksvig"] = class_maps(mesh, scale, toksvig=True)
+    if split:
+        for name, base_colour in (("base colour at full size", True), ("maps at full size", False)):
+            candidates[name] = full_size(mesh, candidates["maps+toksvig"], base_colour)
     candidates["maps as JPEG"] = as_jpeg(mesh, maps)
     walls, stages = {}, {}
     with tempfile.TemporaryDirectory() as folder:
@@ -275,6 +297,7 @@ def main() -> int:
     parser.add_argument("--views", type=int, default=60)
     parser.add_argument("--time-budget", type=float, default=60.0)
     parser.add_argument("--no-product", action="store_true", help="skip `geoscaler downsample`")
+    parser.add_argument("--split", action="store_true", help="where the lit error lives")
     parser.add_argument("--json", type=Path)
     parser.add_argument("--figure", type=Path, help="folder for a lit picture per mesh")
     args = parser.parse_args()
@@ -289,14 +312,14 @@ def main() -> int:
         for scale in args.scale:
             start = time.perf_counter()
             budget = None if args.no_product else args.time_budget
-            results = score_mesh(path, scale, args.views, budget, args.figure)
+            results = score_mesh(path, scale, args.views, budget, args.figure, args.split)
             for name, scores in results.items():
                 table.append(
                     {"mesh": path.parent.name, "scale": scale, "candidate": name, **scores.__dict__}
                 )
                 lit = "  ".join(f"{s} {scores.lit_psnr_fg[s]:6.2f}" for s in SETS)
                 print(
-                    f"{path.parent.name:28s} x{scale} {name:18s} lit {lit}  "
+                    f"{path.parent.name:28s} x{scale} {name:24s} lit {lit}  "
                     f"ssim Q {scores.lit_ssim_fg['Q']:.4f}  unlit Q "
                     f"{scores.unlit_psnr_fg_q:6.2f}  {scores.texture_bytes / 1e3:8.1f} kB"
                     + ("" if scores.seconds != scores.seconds else f"  {scores.seconds:.1f} s")
