@@ -138,8 +138,9 @@ class _Statements:
         if given is not None:
             totals = np.array([len(arrays[k]) for k in ELEMENTS])
             absent = given == _ABSENT
+            given[absent] = 0
             resolved = np.where(given > 0, given - 1, seen + given)
-            bad = ~absent & ((given == 0) | (given > totals) | (resolved < 0))
+            bad = ~absent & ((given == 0) | (given > totals) | (resolved < 0))  # 0: not an index
             bad[:, 0] |= absent[:, 0]
             if not bad.any():
                 return np.where(absent, NO_INDEX, resolved)
