@@ -7,6 +7,7 @@ import pytest
 from PIL import Image
 
 from geoscaler.errors import GeoscalerError
+from geoscaler.resize import filters
 from geoscaler.resize.filters import (
     BASELINES,
     _box_float,
@@ -137,6 +138,51 @@ def test_pillow_baselines_are_pillows_rgb_resize(method, resample):
     texture = _texture(50, 37, 3)
     expected = np.asarray(Image.fromarray(texture).resize((5, 6), resample))
     np.testing.assert_array_equal(downsample_texture(texture, 8, method), expected)
+
+
+@pytest.mark.parametrize(
+    ("method", "resample"),
+    [("box", Image.BOX), ("bicubic", Image.BICUBIC), ("lanczos", Image.LANCZOS)],
+)
+def test_channels_resized_on_threads_are_the_channels_resized_one_by_one(
+    method, resample, monkeypatch
+):
+    texture = _texture(50, 37, 4)
+    expected = np.stack(
+        [np.asarray(Image.fromarray(texture[..., c]).resize((5, 6), resample)) for c in range(4)],
+        axis=-1,
+    )
+    monkeypatch.setattr(filters, "PARALLEL_TEXELS", 1)
+    monkeypatch.setattr(filters.os, "cpu_count", lambda: 2)
+    np.testing.assert_array_equal(downsample_texture(texture, 8, method), expected)
+
+
+def test_a_texture_resized_again_the_same_way_is_not_resized_again(monkeypatch):
+    texture, calls = _texture(64, 64, 3), []
+    resize = filters.resize_channels
+    monkeypatch.setattr(filters, "resize_channels", lambda *a: calls.append(a) or resize(*a))
+    first, second = filters.lanczos(texture, 4), filters.lanczos(texture, 4)
+    other_size, other_filter = filters.lanczos(texture, 2), filters.bicubic(texture, 4)
+    assert len(calls) == 3
+    np.testing.assert_array_equal(first, second)
+    first[0, 0] = 255 - second[0, 0]  # each caller's own array
+    np.testing.assert_array_equal(filters.lanczos(texture, 4), second)
+    assert other_size.shape == (32, 32, 3) and not np.array_equal(other_filter, second)
+
+
+def test_a_resized_entry_is_only_the_array_it_was_made_from():
+    """An array may take the id of one that was freed: its entry is not the new array's."""
+    memo, before, after = filters._Resized(), _texture(4, 4, 3), _texture(4, 4, 3, seed=1)
+    memo.put(before, "lanczos", before[:2, :2].copy())
+    memo.entries[(id(after), "lanczos")] = memo.entries.pop((id(before), "lanczos"))
+    assert memo.get(after, "lanczos") is None
+
+
+def test_only_the_last_entries_are_kept():
+    memo, arrays = filters._Resized(size=2), [_texture(2, 2, 1, seed=s) for s in range(3)]
+    for array in arrays:
+        memo.put(array, "how", array.copy())
+    assert [memo.get(a, "how") is not None for a in arrays] == [False, True, True]
 
 
 @pytest.mark.parametrize("method", METHODS)

@@ -14,8 +14,10 @@ scale)``:
 
 from __future__ import annotations
 
+import os
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import scipy.sparse as sp
@@ -77,6 +79,9 @@ def _size_of(texture: np.ndarray, target: int | tuple[int, int]) -> tuple[int, i
     return target_size(height, width, target)
 
 
+PARALLEL_TEXELS = 1 << 20
+"""Texels from which :func:`resize_channels` resizes the channels on threads at once."""
+
 _CHANNELS = (1, 2, 3, 4)
 """Channel counts the filters accept (grey, grey+alpha, RGB, RGBA); checked by
 :func:`geoscaler.mesh.check_texture`, which raises a GeoscalerError."""
@@ -89,14 +94,21 @@ def resize_channels(
 
     Each channel is resampled as its own 8-bit 'L' image: for RGB this is bit-identical to
     resizing the RGB image, and for alpha it avoids Pillow's RGBA path, which premultiplies
-    colour by alpha (and so loses colour under transparent texels).
+    colour by alpha (and so loses colour under transparent texels). Channels of a texture of
+    :data:`PARALLEL_TEXELS` or more are resized on threads at once (on two cores a 4096 x 4096
+    RGB texture's bicubic and Lanczos resizes took 0.28 to 0.32 s instead of 0.51 to 0.61 s).
     """
     h, w = size
-    channels = [
-        np.asarray(Image.fromarray(np.ascontiguousarray(texture[..., c])).resize((w, h), resample))
-        for c in range(texture.shape[2])
-    ]
-    return np.stack(channels, axis=-1)
+
+    def channel(c: int) -> np.ndarray:
+        plane = Image.fromarray(np.ascontiguousarray(texture[..., c]))
+        return np.asarray(plane.resize((w, h), resample))
+
+    workers = min(texture.shape[2], os.cpu_count() or 1)
+    if workers < 2 or texture.shape[0] * texture.shape[1] < PARALLEL_TEXELS:
+        return np.stack([channel(c) for c in range(texture.shape[2])], axis=-1)
+    with ThreadPoolExecutor(workers) as pool:  # Pillow resizes without holding the GIL
+        return np.stack(list(pool.map(channel, range(texture.shape[2]))), axis=-1)
 
 
 def resize_float(
@@ -115,9 +127,14 @@ def _resample(
     texture: np.ndarray, target: int | tuple[int, int], resample: Image.Resampling
 ) -> np.ndarray:
     """Validate, then resize ``texture`` to ``target`` (a scale or a size) with a Pillow
-    filter."""
+    filter; a texture resized the same way before is not resized again (a job's Lanczos
+    filter and ``direct``'s start resize the same original: 0.3 s each at 4096 x 4096)."""
     check_texture(texture, channels=_CHANNELS)
-    return resize_channels(texture, _size_of(texture, target), resample)
+    size = _size_of(texture, target)
+    resized = _RESIZED.get(texture, (size, resample))
+    if resized is None:
+        resized = _RESIZED.put(texture, (size, resample), resize_channels(texture, size, resample))
+    return resized.copy()  # the caller's to change
 
 
 def box(texture: np.ndarray, scale: int | tuple[int, int]) -> np.ndarray:
@@ -284,9 +301,31 @@ def downsample_texture(texture: np.ndarray, scale: int, method: str) -> np.ndarr
     return BASELINES[method](texture, scale)
 
 
-_REFERENCES: dict[tuple[int, int], tuple[weakref.ref, np.ndarray]] = {}
-"""Reduced reference maps by original (the last 8): a 4096 x 4096 original takes about 0.5 s
-to reduce, and a job asks for its reference from each filter, the method and the renderer."""
+class _Resized:
+    """The last ``size`` resized arrays, by original (an array not changed in place) and how
+    it was resized; an original's entry is never mistaken for a later array's at its id."""
+
+    def __init__(self, size: int = 8):
+        self.size = size
+        self.entries: dict[tuple[int, Hashable], tuple[weakref.ref, np.ndarray]] = {}
+
+    def get(self, original: np.ndarray, how: Hashable) -> np.ndarray | None:
+        entry = self.entries.get((id(original), how))
+        return entry[1] if entry is not None and entry[0]() is original else None
+
+    def put(self, original: np.ndarray, how: Hashable, resized: np.ndarray) -> np.ndarray:
+        resized.flags.writeable = False  # shared by every caller
+        if len(self.entries) >= self.size:
+            del self.entries[next(iter(self.entries))]  # the oldest
+        self.entries[(id(original), how)] = (weakref.ref(original), resized)
+        return resized
+
+
+_RESIZED = _Resized()
+"""The Pillow filters' results (:func:`_resample`)."""
+_REFERENCES = _Resized()
+"""Reduced reference maps: a 4096 x 4096 original takes about 0.5 s to reduce, and a job asks
+for its reference from each filter, the method and the renderer."""
 
 
 def reference_texture(texture: np.ndarray, max_size: int = REFERENCE_MAX_SIZE) -> np.ndarray:
@@ -311,15 +350,10 @@ def reference_texture(texture: np.ndarray, max_size: int = REFERENCE_MAX_SIZE) -
     size = reference_size(*texture.shape[:2], max_size)
     if size == texture.shape[:2]:
         return texture
-    key = (id(texture), max_size)
-    cached = _REFERENCES.get(key)
-    if cached is not None and cached[0]() is texture:
-        return cached[1]
-    reduced = resize_channels(texture, size, Image.Resampling.LANCZOS)
-    reduced.flags.writeable = False  # shared by every caller
-    if len(_REFERENCES) >= 8:
-        del _REFERENCES[next(iter(_REFERENCES))]  # the oldest
-    _REFERENCES[key] = (weakref.ref(texture), reduced)
+    reduced = _REFERENCES.get(texture, max_size)
+    if reduced is None:
+        reduced = resize_channels(texture, size, Image.Resampling.LANCZOS)
+        reduced = _REFERENCES.put(texture, max_size, reduced)
     return reduced
 
 
