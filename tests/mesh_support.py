@@ -17,8 +17,7 @@ from geoscaler.mesh import Material, TexturedMesh, compute_vertex_normals, weld_
 FORMATS = [".obj", ".glb", ".gltf"]
 DROPPED_MAPS = "ignore:material .* OBJ/MTL cannot express"
 
-QUAD_OBJ = """mtllib mesh.mtl
-v 0 0 0
+SQUARE_ELEMENTS = """v 0 0 0
 v 1 0 0
 v 1 1 0
 v 0 1 0
@@ -26,10 +25,9 @@ vt 0 0
 vt 1 0
 vt 1 1
 vt 0 1
-usemtl mat
-f 1/1 2/2 3/3
-f 1/1 3/3 4/4
 """
+"""The corners of the unit square in z = 0 and their texture coordinates, as OBJ elements."""
+QUAD_OBJ = "mtllib mesh.mtl\n" + SQUARE_ELEMENTS + "usemtl mat\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n"
 TEXTURE = np.arange(4 * 8 * 3, dtype=np.uint8).reshape(4, 8, 3)
 
 

@@ -8,22 +8,13 @@ import numpy as np
 import pytest
 import trimesh
 from conftest import mesh_params
-from mesh_support import write_obj_asset
+from mesh_support import SQUARE_ELEMENTS, write_obj_asset
 
 from geoscaler.errors import GeoscalerError
 from geoscaler.io import load_mesh
 from geoscaler.io.obj_geometry import obj_parts
 
-SQUARE = """v 0 0 0
-v 1 0 0
-v 1 1 0
-v 0 1 0
-vt 0 0
-vt 1 0
-vt 1 1
-vt 0 1
-vn 0 0 1
-"""
+SQUARE = SQUARE_ELEMENTS + "vn 0 0 1\n"
 HERE = Path("here.obj")
 
 
