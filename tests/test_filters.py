@@ -178,6 +178,13 @@ def test_a_resized_entry_is_only_the_array_it_was_made_from():
     assert memo.get(after, "lanczos") is None
 
 
+def test_an_entry_goes_with_its_original():
+    memo, original = filters._Resized(), _texture(4, 4, 3)
+    memo.put(original, "lanczos", original[:2, :2].copy())
+    del original
+    assert memo.entries == {}
+
+
 def test_only_the_last_entries_are_kept():
     memo, arrays = filters._Resized(size=2), [_texture(2, 2, 1, seed=s) for s in range(3)]
     for array in arrays:

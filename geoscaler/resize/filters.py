@@ -15,6 +15,7 @@ scale)``:
 from __future__ import annotations
 
 import os
+import threading
 import weakref
 from collections.abc import Callable, Hashable
 from concurrent.futures import ThreadPoolExecutor
@@ -303,22 +304,33 @@ def downsample_texture(texture: np.ndarray, scale: int, method: str) -> np.ndarr
 
 class _Resized:
     """The last ``size`` resized arrays, by original (an array not changed in place) and how
-    it was resized; an original's entry is never mistaken for a later array's at its id."""
+    it was resized. An entry goes when its original is freed, so it is never mistaken for a
+    later array at the same id, and holds no memory for an asset that is done."""
 
     def __init__(self, size: int = 8):
         self.size = size
         self.entries: dict[tuple[int, Hashable], tuple[weakref.ref, np.ndarray]] = {}
+        # the app resizes on its worker and window threads; reentrant, since a collection
+        # inside put() may free an original and call _forget on the same thread
+        self.lock = threading.RLock()
 
     def get(self, original: np.ndarray, how: Hashable) -> np.ndarray | None:
-        entry = self.entries.get((id(original), how))
+        with self.lock:
+            entry = self.entries.get((id(original), how))
         return entry[1] if entry is not None and entry[0]() is original else None
 
     def put(self, original: np.ndarray, how: Hashable, resized: np.ndarray) -> np.ndarray:
         resized.flags.writeable = False  # shared by every caller
-        if len(self.entries) >= self.size:
-            del self.entries[next(iter(self.entries))]  # the oldest
-        self.entries[(id(original), how)] = (weakref.ref(original), resized)
+        key = (id(original), how)
+        with self.lock:
+            for oldest in list(self.entries)[: max(0, len(self.entries) - self.size + 1)]:
+                self.entries.pop(oldest, None)
+            self.entries[key] = (weakref.ref(original, lambda _: self._forget(key)), resized)
         return resized
+
+    def _forget(self, key: tuple[int, Hashable]) -> None:
+        with self.lock:
+            self.entries.pop(key, None)
 
 
 _RESIZED = _Resized()
