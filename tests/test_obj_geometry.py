@@ -11,7 +11,7 @@ from conftest import mesh_params
 from mesh_support import SQUARE_ELEMENTS, write_obj_asset
 
 from geoscaler.errors import GeoscalerError
-from geoscaler.io import load_mesh
+from geoscaler.io import load_mesh, obj_geometry
 from geoscaler.io.obj_geometry import obj_parts
 
 SQUARE = SQUARE_ELEMENTS + "vn 0 0 1\n"
@@ -148,3 +148,13 @@ def test_corners_of_mixed_forms_read_as_the_same_corners_written_alike():
 def test_a_bad_face_index_is_refused_with_its_line(face: str, message: str):
     with pytest.raises(GeoscalerError, match=f"here.obj: line 10: {message}"):
         obj_parts(SQUARE + face + "\n", {}, HERE)
+
+
+@pytest.mark.parametrize("largest", [9, 2**40])
+def test_distinct_rows_are_numpys_distinct_rows(largest: int):
+    rows = np.random.default_rng(0).integers(-1, 3, (200, 3), dtype=np.int64)
+    rows[rows == 2] = largest  # a key past int64 is made another way, to the same result
+    distinct, inverse = obj_geometry._distinct_rows(rows)
+    expected, expected_inverse = np.unique(rows, axis=0, return_inverse=True)
+    np.testing.assert_array_equal(distinct, expected)
+    np.testing.assert_array_equal(inverse, expected_inverse.reshape(-1))

@@ -15,6 +15,7 @@ from __future__ import annotations
 import codecs
 import io
 import math
+import re
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -97,10 +98,14 @@ def _decode_text(data: bytes) -> str:
         return data.decode("latin-1")
 
 
+_MENTIONS_MTLLIB = re.compile(r"^.*mtllib.*$", re.MULTILINE)
+
+
 def _obj_libraries(text: str, path: Path, root: Path) -> list[Path]:
     """The MTL files named by ``mtllib`` lines (one name with spaces, or several names)."""
     libraries: list[Path] = []
-    for line in text.splitlines():
+    lines = (line for found in _MENTIONS_MTLLIB.findall(text) for line in found.splitlines())
+    for line in lines:  # only the lines that mention it: a large OBJ has a million others
         words = line.split(None, 1)
         if len(words) < 2 or words[0] != "mtllib":
             continue

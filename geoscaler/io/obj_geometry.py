@@ -248,7 +248,7 @@ def _fans(corners: np.ndarray, sizes: np.ndarray) -> np.ndarray:
 
 def _part(corners: np.ndarray, arrays: Mapping[str, np.ndarray], material: int | None) -> Part:
     """The part of one material from its ``(3 F, 3)`` corner triples."""
-    triples, inverse = np.unique(corners, axis=0, return_inverse=True)
+    triples, inverse = _distinct_rows(corners)
     faces = inverse.reshape(-1, 3)
     uvs = normals = None
     if (triples[:, 1] != NO_INDEX).all():
@@ -256,3 +256,18 @@ def _part(corners: np.ndarray, arrays: Mapping[str, np.ndarray], material: int |
     if (triples[:, 2] != NO_INDEX).all():
         normals = arrays["vn"][triples[:, 2]]
     return Part(arrays["v"][triples[:, 0]], faces, uvs, normals, material)
+
+
+def _distinct_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(rows, axis=0, return_inverse=True)`` of ``(K, 3)`` int64 rows of values
+    >= -1, through one int64 key per row where the key fits (several times faster)."""
+    shifted = rows + 1
+    spans = [int(span) + 1 for span in shifted.max(axis=0)] if len(rows) else [1, 1, 1]
+    if spans[0] * spans[1] * spans[2] >= 2**63:
+        return np.unique(rows, axis=0, return_inverse=True)
+    key = (shifted[:, 0] * spans[1] + shifted[:, 1]) * spans[2] + shifted[:, 2]
+    keys, inverse = np.unique(key, return_inverse=True)
+    distinct = np.stack(
+        [keys // (spans[1] * spans[2]), keys // spans[2] % spans[1], keys % spans[2]]
+    )
+    return distinct.T - 1, inverse.reshape(-1)
