@@ -67,8 +67,9 @@ def obj_parts(text: str, materials: Mapping[str, int], path: Path) -> list[Part]
 
 @dataclass
 class _Statements:
-    """The statements of an OBJ file that hold geometry, as read: element numbers as words,
-    face corners as words, and per face its corner count, material group and line."""
+    """The statements of an OBJ file that hold geometry, as read: element numbers as words
+    (with their lines), face corners as words, and per face its corner count, material group
+    and how many elements of each kind came before it."""
 
     elements: dict[str, list[list[str]]] = field(default_factory=dict)
     element_lines: dict[str, list[int]] = field(default_factory=dict)
