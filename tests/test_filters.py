@@ -157,6 +157,14 @@ def test_channels_resized_on_threads_are_the_channels_resized_one_by_one(
     np.testing.assert_array_equal(downsample_texture(texture, 8, method), expected)
 
 
+def test_float_planes_resized_on_threads_are_the_planes_resized_one_by_one(monkeypatch):
+    values = np.random.default_rng(4).random((50, 37, 3), dtype=np.float32)
+    expected = filters.resize_float(values, (6, 5), Image.LANCZOS)
+    monkeypatch.setattr(filters, "PARALLEL_TEXELS", 1)
+    monkeypatch.setattr(filters.os, "cpu_count", lambda: 2)
+    np.testing.assert_array_equal(filters.resize_float(values, (6, 5), Image.LANCZOS), expected)
+
+
 def test_a_texture_resized_again_the_same_way_is_not_resized_again(monkeypatch):
     texture, calls = _texture(64, 64, 3), []
     resize = filters.resize_channels

@@ -81,7 +81,8 @@ def _size_of(texture: np.ndarray, target: int | tuple[int, int]) -> tuple[int, i
 
 
 PARALLEL_TEXELS = 1 << 20
-"""Texels from which :func:`resize_channels` resizes the channels on threads at once."""
+"""Texels from which :func:`resize_channels` and :func:`resize_float` resize the channels on
+threads at once."""
 
 _CHANNELS = (1, 2, 3, 4)
 """Channel counts the filters accept (grey, grey+alpha, RGB, RGBA); checked by
@@ -99,17 +100,8 @@ def resize_channels(
     :data:`PARALLEL_TEXELS` or more are resized on threads at once (on two cores a 4096 x 4096
     RGB texture's bicubic and Lanczos resizes took 0.28 to 0.32 s instead of 0.51 to 0.61 s).
     """
-    h, w = size
-
-    def channel(c: int) -> np.ndarray:
-        plane = Image.fromarray(np.ascontiguousarray(texture[..., c]))
-        return np.asarray(plane.resize((w, h), resample))
-
-    workers = min(texture.shape[2], os.cpu_count() or 1)
-    if workers < 2 or texture.shape[0] * texture.shape[1] < PARALLEL_TEXELS:
-        return np.stack([channel(c) for c in range(texture.shape[2])], axis=-1)
-    with ThreadPoolExecutor(workers) as pool:  # Pillow resizes without holding the GIL
-        return np.stack(list(pool.map(channel, range(texture.shape[2]))), axis=-1)
+    planes = [np.ascontiguousarray(texture[..., c]) for c in range(texture.shape[2])]
+    return np.stack(_resized_planes(planes, size, resample), axis=-1)
 
 
 def resize_float(
@@ -117,11 +109,28 @@ def resize_float(
 ) -> np.ndarray:
     """Resize ``(H, W, C)`` float32 to ``size = (h, w)`` with a Pillow filter, channel by
     channel as 32-bit float ('F') images: the filter of :func:`resize_channels` without its
-    8-bit input and output, for values quantised once, afterwards."""
-    h, w = size
+    8-bit input and output, for values quantised once, afterwards (a bake's chart colours);
+    large planes on threads at once, as there."""
     planes = [np.ascontiguousarray(values[..., c], np.float32) for c in range(values.shape[2])]
-    resized = [Image.fromarray(plane).resize((w, h), resample) for plane in planes]
-    return np.stack([np.asarray(plane) for plane in resized], axis=-1)
+    return np.stack(_resized_planes(planes, size, resample), axis=-1)
+
+
+def _resized_planes(
+    planes: list[np.ndarray], size: tuple[int, int], resample: Image.Resampling
+) -> list[np.ndarray]:
+    """Each ``(H, W)`` plane (uint8 or float32) resized to ``size = (h, w)`` by Pillow; planes
+    of :data:`PARALLEL_TEXELS` or more on threads at once (Pillow resizes without holding the
+    GIL)."""
+    h, w = size
+
+    def resized(plane: np.ndarray) -> np.ndarray:
+        return np.asarray(Image.fromarray(plane).resize((w, h), resample))
+
+    workers = min(len(planes), os.cpu_count() or 1)
+    if workers < 2 or planes[0].size < PARALLEL_TEXELS:
+        return [resized(plane) for plane in planes]
+    with ThreadPoolExecutor(workers) as pool:
+        return list(pool.map(resized, planes))
 
 
 def _resample(
