@@ -130,7 +130,8 @@ class TrialFacts:
         validation_sets: set name -> its mean PSNR-fg; shortfall_db: how far it falls below
         the filters' floor on its worst set (0: it clears it); below_own_on: the sets on which
         it is below the own layout's trial beyond the noise; unfinished: it made fewer steps
-        than the first trial (stopped by the budget's end), so it was not ranked.
+        than the first trial (stopped by the budget's end), so it was ranked only if it made
+        one at least and already ranked above the first trial.
         start_below: set name -> how far (dB) the layout's start (its bake) validated below
         the best filter there beyond the noise, on the sets where it did (a new layout's
         trial only; None: not measured); gated: it started more than the race's margin below

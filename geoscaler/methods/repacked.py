@@ -134,14 +134,21 @@ class LayoutValidation(Validation):
     ) -> float:
         """As :meth:`Validation.seconds_needed`, with the base's unit costs until this layout
         has measured its own (the same views and sizes), plus the taps of this layout still
-        to find in the frozen views (a view's caching cost each: the views themselves are
-        cached already, by the base)."""
+        to find in the frozen views (:func:`taps_seconds`: the views themselves are cached
+        already, by the base)."""
         source = super() if self._render_seconds else self.base
         seconds = source.seconds_needed(validations, caching, view_seconds, least)
         if not self.frozen:
             return seconds
         missing = sum(max(self.counts[n] - len(c.taps), 0) for n, c in self.sets.items())
-        return seconds + missing * (self.base.view_cost or view_seconds)
+        return seconds + taps_seconds(self.base, missing, view_seconds)
+
+
+def taps_seconds(validation: Validation, views: int, view_seconds: float = 0.0) -> float:
+    """Seconds a new UV layout takes to find its taps in ``views`` views whose G-buffers and
+    references are cached: ``validation``'s mean taps' seconds a view, or its whole view's
+    cost until it has timed one (``view_seconds`` before either)."""
+    return views * (validation.tap_cost or validation.view_cost or view_seconds)
 
 
 PLANNING_VIEWS_SHARE = 0.5
@@ -374,10 +381,11 @@ def raced(
     candidate with the steps and the time left.
 
     ``later(trial_seconds)`` makes more layouts once the trials of ``layouts`` have run
-    (``--uv auto``: the new ones are planned and baked after the own layout's trial, which
-    took ``trial_seconds``): the first step waits on no planning, and a race that ends after
-    that trial (nothing visible left to gain, no step made, stopped) plans nothing (the reason
-    in ``facts.skipped``).
+    (``--uv auto``: the new ones are planned and baked after the own layout's trial; a new
+    layout's shortest trial that can be ranked takes ``trial_seconds``,
+    :meth:`_Trials.least_later`): the first step waits on no planning, and a race that ends
+    after that trial (nothing visible left to gain, no step made, stopped) plans nothing (the
+    reason in ``facts.skipped``).
 
     The first trial runs, after what the race pays once (the validation views' caching and
     the baselines' scoring), at most :data:`TRIAL_SHARE` of the time left and that share of
@@ -417,7 +425,7 @@ def raced(
         if race.ended:
             facts.skipped = race.ended
         else:
-            layouts = {**layouts, **later(race.first_seconds)}
+            layouts = {**layouts, **later(race.least_later(layouts["keep"].validation))}
             race.run_each(mesh, rule, layouts, start_model)
     winner = _winner(race.results, layouts, facts, race.steps_each, race.starts)
     facts.race.update(race.gated)
@@ -621,8 +629,6 @@ class _Trials:
         self.starts: dict[str, dict[str, float]] = {}
         self.gated: dict[str, TrialFacts] = {}
         self.steps = 0
-        self.first_seconds = 0.0
-        """Seconds on the context's clock the first trial took, its views' caching included."""
 
     def run_each(
         self, mesh: TexturedMesh, rule: SizeRule, layouts: dict[str, Layout], start_model: Any
@@ -683,7 +689,6 @@ class _Trials:
             deadline = min(deadline, self.end - _relayout_reserve(layout, self.context))
         if first and self.planning_follows:
             handover["caching_share"] = FIRST_TRIAL_CACHING
-        began = self.context.clock.now()
         phase = _Phase(self.config, self.context, self.started, self.steps, first, last=False)
         pool = training_views(layout.renderer, self.cameras, layout.validation.sizes, True)
         result = phase.fit(
@@ -695,7 +700,17 @@ class _Trials:
         self.steps += result.loop.steps
         if first:
             self.steps_each = result.loop.steps
-            self.first_seconds = self.context.clock.now() - began
+
+    def least_later(self, validation: Validation) -> float:
+        """Seconds a later trial takes at least to be ranked (:func:`_ranked`), with the loop's
+        :data:`~geoscaler.optim.loop.FINISH_MARGIN`: its taps in the first trial's
+        ``validation`` views and in one step's training views (:func:`taps_seconds`), and three
+        validations: its start's, one after a step, and the step (the forward and backward
+        passes of ``views_per_step`` views, about one validation's renders in the nine or more
+        views it has)."""
+        views = validation.num_views + self.config.views_per_step
+        taps = taps_seconds(validation, views, validation.view_cost)
+        return FINISH_MARGIN * (validation.seconds_needed(3, False) + taps)
 
     def _invisible(self, validation: Validation, first: MethodResult) -> bool:
         """Whether the first trial ended with its validation showing a filter beyond what is
@@ -795,13 +810,27 @@ def _winner(
     eligible = [
         name
         for name in ranks
-        if name == first or (not below[name] and not facts.race[name].unfinished)
+        if name == first
+        or (not below[name] and _ranked(facts.race[name], ranks[name], ranks[first]))
     ]
     winner = max(eligible, key=lambda name: (ranks[name], name == "keep"))
     facts.used = winner
     if layouts[winner].atlas is not None:
         facts.planned = layouts[winner].atlas.facts
     return winner
+
+
+def _ranked(
+    trial: TrialFacts, rank: tuple[float, float], first_rank: tuple[float, float]
+) -> bool:
+    """Whether a later trial is ranked: one that made the first trial's steps, or one that made
+    fewer (the budget ended it), at least one, and already ranks above the first. A loop keeps
+    its best candidate, so its validated best only rises with more steps: fewer steps can
+    understate a layout, never overstate it, and a shorter trial that wins would win the
+    full one too."""
+    if not trial.unfinished:
+        return True
+    return trial.steps >= 1 and rank > first_rank
 
 
 def _stopped(context: RunContext) -> bool:

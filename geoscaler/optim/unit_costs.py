@@ -36,12 +36,14 @@ class UnitCosts:
 
     Attributes:
         view_cost: seconds to cache one view with its taps (:class:`ViewCost`).
+        tap_cost: seconds of those to find its taps.
         render_seconds: seconds to render a candidate in one view (0.0 before measured).
         metric_seconds: seconds to compute the protocol metrics of one view (0.0 before).
     """
 
     def __init__(self) -> None:
         self.view_cost = ViewCost()
+        self.tap_cost = ViewCost()
         self.render_seconds = 0.0
         self.metric_seconds = 0.0
 

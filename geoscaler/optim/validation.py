@@ -195,8 +195,9 @@ class Validation:
         if name is None:
             return False
         started = self.clock.now()
-        cache = self.views.cache_view(name)
+        cache, tapping = self.views.cache_view(name, self.clock)
         self.costs.view_cost.add(self.clock.now() - started)
+        self.costs.tap_cost.add(tapping)
         if not self.costs.render_seconds:
             self.costs.measure(cache, self.sizes, self.clock)
         return True
@@ -231,6 +232,13 @@ class Validation:
     def view_cost(self) -> float:
         """Mean seconds to cache one validation view with its taps (0 before one is cached)."""
         return self.costs.view_cost.mean
+
+    @property
+    def tap_cost(self) -> float:
+        """Mean seconds to find one validation view's taps, part of :attr:`view_cost` (0 before
+        one is cached): what a view costs a new UV layout of the mesh, whose G-buffer and
+        reference are the same."""
+        return self.costs.tap_cost.mean
 
     @property
     def _view_cost(self) -> ViewCost:

@@ -20,6 +20,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from geoscaler.clock import WALL_CLOCK, Clock
 from geoscaler.protocol import FAR_DISTANCE, NEAR_DISTANCE, VALIDATION_DISTANCE, Evaluation
 from geoscaler.render.cameras import Camera, fibonacci_directions, spread_order, view_set_cameras
 from geoscaler.render.renderer import Renderer
@@ -128,12 +129,14 @@ class ValidationViews:
             return None
         return min(waiting, key=lambda n: len(self.sets[n]))
 
-    def cache_view(self, name: str) -> ViewCache:
-        """Cache the next view of set ``name`` and find its taps; the set's cache."""
+    def cache_view(self, name: str, clock: Clock = WALL_CLOCK) -> tuple[ViewCache, float]:
+        """Cache the next view of set ``name`` and find its taps: the set's cache and the
+        seconds on ``clock`` the taps took (all a new UV layout of the same views pays)."""
         cache = self.sets[name]
         cache.views.cache_next()
+        started = clock.now()
         cache.find_taps(len(cache) - 1)
-        return cache
+        return cache, clock.now() - started
 
     def freeze(self, least: Mapping[str, int] = MIN_FROZEN) -> None:
         """Validate on the views cached so far from now on, caching first the ``least`` views of

@@ -511,7 +511,7 @@ def _trial_words(name: str, trial: dict[str, Any]) -> str:
     if trial.get("below_own_on"):
         words += f" (below the own layout on {' and '.join(trial['below_own_on'])})"
     if trial.get("unfinished"):
-        words += " (short of the first trial's steps: not ranked)"
+        words += " (short of the first trial's steps: ranked only above it)"
     if below:
         words += f" (its start below a filter by {gaps})"
     return words
