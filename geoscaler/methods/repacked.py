@@ -82,8 +82,8 @@ the own layout's trial) by which the new layouts are planned and baked, the rest
 steps: the packing's search stops there, the cut's plan is not
 made where it would end later (:func:`~geoscaler.uv.atlas.repack`), nor the bake where its
 estimate would (:func:`bake_seconds`: the mesh's own layout goes on). The first new layout
-may take longer, as long as the time left after it still holds its bake and a trial as long
-as the own layout's (:func:`_planning_deadline`). The trial that runs
+may take longer, as long as the time left after it still holds its bake and a new layout's
+shortest trial that can be ranked (:func:`_planning_deadline`). The trial that runs
 before the planning caches its views within the rest of the loop's caching share
 (:data:`FIRST_TRIAL_CACHING`)."""
 FIRST_TRIAL_CACHING = CACHING_SHARE * (1.0 - PREPARING_SHARE)
@@ -577,12 +577,14 @@ def _planning_deadline(
     """``(instant the plans must be done by, a later one for the first plan or None, seconds a
     bake takes)`` (None, None and 0 without a budget; the bake priced by :func:`bake_seconds`).
 
-    The plans are done by :data:`PREPARING_SHARE` of the time left, less the bake. After a
-    trial of ``trial_seconds`` (the own layout's, its views' caching included), the first
-    plan may end as late as the time left to ``end`` still holds its bake and a trial as long:
-    the race needs no more to weigh it. On a short budget the share alone left the planning
-    less than it takes (gso_chefmate_8_frypan and bob at 4x and 15 s; bob: 0.7 to 1.0 s where
-    its planning views take 0.9 s and its packing 0.8 s)."""
+    The plans are done by :data:`PREPARING_SHARE` of the time left, less the bake. Where a
+    new layout's shortest trial that can be ranked takes ``trial_seconds``
+    (:meth:`_Trials.least_later`), the first plan may end as late as the time left to ``end``
+    still holds its bake and that trial: the race needs no more to weigh it. On a short
+    budget the share alone left the planning less than it takes (gso_chefmate_8_frypan and bob
+    at 4x and 15 s; bob: 0.7 to 1.0 s where its planning views take 0.9 s and its packing
+    0.8 s), and so did a trial as long as the own layout's, its views' caching included (bob
+    at 8x and 15 s; see docs/decisions/keep-first-race.md)."""
     if end is None:
         return None, None, 0.0
     sizes = output_sizes_for(mesh, rule, renderer)
