@@ -711,7 +711,7 @@ class _Trials:
         passes of ``views_per_step`` views, about one validation's renders in the nine or more
         views it has)."""
         views = validation.num_views + self.config.views_per_step
-        taps = taps_seconds(validation, views, validation.view_cost)
+        taps = taps_seconds(validation, views)
         return FINISH_MARGIN * (validation.seconds_needed(3, False) + taps)
 
     def _invisible(self, validation: Validation, first: MethodResult) -> bool:
