@@ -174,8 +174,9 @@ def fake_race(
     ``first_made`` steps and stops for ``first_stopped_by`` (taking 2.5 s where the context's
     clock is a ManualClock), later phases make the steps they are given; every layout
     validates alike, or ``winner``'s better, on 9 views, each cached in ``view_cost`` seconds
-    (``tap_cost`` of them its taps) and each validation taking ``validation_seconds``. ``trial_times`` receives the price of a
-    later trial's least each time the new layouts are planned. Returns the result, the
+    (``tap_cost`` of them its taps) and each validation taking ``validation_seconds``.
+    ``trial_times`` receives the price of a later trial's least each time the new layouts are
+    planned. Returns the result, the
     facts, ``(layout, steps)`` per phase, how many times the new layouts were planned, and the
     layouts whose training pool was still held as the race's last phase started; ``ends``
     receives ``(layout, loop end, reserve)`` per phase. The race runs in ``context`` (default:
