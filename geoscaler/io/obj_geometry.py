@@ -54,7 +54,7 @@ def obj_parts(text: str, materials: Mapping[str, int], path: Path) -> list[Part]
         past its list: the line and what to do.
     """
     statements = _Statements.read(text, materials, path)
-    arrays = {kind: statements.numbers(kind, path) for kind in ELEMENTS}
+    arrays = {kind: statements.numbers(kind, text, path) for kind in ELEMENTS}
     corners = statements.corner_indices(arrays, text, path)
     sizes = np.asarray(statements.sizes, dtype=np.int64)
     triangles = _fans(corners, sizes)
@@ -67,12 +67,11 @@ def obj_parts(text: str, materials: Mapping[str, int], path: Path) -> list[Part]
 
 @dataclass
 class _Statements:
-    """The statements of an OBJ file that hold geometry, as read: element numbers as words
-    (with their lines), face corners as words, and per face its corner count, material group
-    and how many elements of each kind came before it."""
+    """The statements of an OBJ file that hold geometry, as read: element numbers as words,
+    face corners as words, and per face its corner count, material group and how many
+    elements of each kind came before it."""
 
     elements: dict[str, list[list[str]]] = field(default_factory=dict)
-    element_lines: dict[str, list[int]] = field(default_factory=dict)
     words: list[str] = field(default_factory=list)
     sizes: list[int] = field(default_factory=list)
     face_group: list[int] = field(default_factory=list)
@@ -81,7 +80,7 @@ class _Statements:
 
     @classmethod
     def read(cls, text: str, materials: Mapping[str, int], path: Path) -> _Statements:
-        read = cls({k: [] for k in ELEMENTS}, {k: [] for k in ELEMENTS})
+        read = cls({k: [] for k in ELEMENTS})
         group = read.group_of(None)
         for number, line in enumerate(text.splitlines(), 1):
             words = line.split()
@@ -106,25 +105,25 @@ class _Statements:
         return self.groups.index(material)
 
     def add_element(self, head: str, words: list[str], number: int, path: Path) -> None:
-        given = words[1 : _WIDTHS[head] + 1]
-        if head == "vt" and len(given) == 1:
-            given.append("0")  # a missing v is 0, as the format says
+        given = _number_words(words)
         if len(given) < _WIDTHS[head]:
             raise _needs_numbers(words, path, number)
         self.elements[head].append(given)
-        self.element_lines[head].append(number)
 
-    def numbers(self, kind: str, path: Path) -> np.ndarray:
-        """``(n, width)`` float64 numbers of every ``kind`` element."""
-        rows = self.elements[kind]
+    def numbers(self, kind: str, text: str, path: Path) -> np.ndarray:
+        """``(n, width)`` float64 numbers of every ``kind`` element; one that is not a number
+        raises with its line (found in ``text`` only then)."""
         try:
-            return np.asarray(rows, dtype=np.float64).reshape(-1, _WIDTHS[kind])
+            return np.asarray(self.elements[kind], dtype=np.float64).reshape(-1, _WIDTHS[kind])
         except ValueError:
-            for row, number in zip(rows, self.element_lines[kind], strict=True):
-                try:
-                    [float(word) for word in row]
-                except ValueError:
-                    raise _needs_numbers([kind, *row], path, number) from None
+            for number, line in enumerate(text.splitlines(), 1):
+                words = line.split()
+                if words[:1] == [kind]:
+                    given = _number_words(words)
+                    try:
+                        [float(word) for word in given]
+                    except ValueError:
+                        raise _needs_numbers([kind, *given], path, number) from None
             raise
 
     def corner_indices(self, arrays: Mapping[str, np.ndarray], text: str, path: Path) -> np.ndarray:
@@ -228,6 +227,15 @@ def _check_corner(corner: str, seen: dict, totals: dict, path: Path, number: int
                 f"{where} refers to {ELEMENTS[kind]} {index}, but the file defines "
                 f"{count}{'' if index > 0 else ' before it'}; repair the file or re-export it"
             )
+
+
+def _number_words(words: list[str]) -> list[str]:
+    """The words of an element statement ``words`` (its head first) that hold its numbers:
+    as many as its kind reads, fewer where the line has fewer."""
+    given = words[1 : _WIDTHS[words[0]] + 1]
+    if words[0] == "vt" and len(given) == 1:
+        given.append("0")  # a missing v is 0, as the format says
+    return given
 
 
 def _needs_numbers(words: list[str], path: Path, number: int) -> GeoscalerError:
