@@ -1,10 +1,11 @@
 """The main job under its time budget, as a user runs it: on an idle machine and beside a busy one.
 
-For every mesh, scale, budget and load this runs ``geoscaler downsample MESH --scale S
---time-budget B -o OUT.glb --report R.json`` in a new process, timed from outside (``busy``: a
-CPU-bound busy loop, started here, runs beside it). Then, with the machine quiet again, it
-scores every written file, bicubic and Lanczos on all views of the protocol's sets (Q, and near
-and far with ``--sets``), as PROTOCOL.md defines them: not the job's own validation views.
+For every mesh, scale, budget, load and UV mode this runs ``geoscaler downsample MESH --scale
+S --time-budget B --uv U -o OUT.glb --report R.json`` in a new process, timed from outside
+(``busy``: a CPU-bound busy loop, started here, runs beside it). Then, with the machine quiet
+again, it scores every written file, bicubic and Lanczos on all views of the protocol's sets (Q,
+and near and far with ``--sets``), as PROTOCOL.md defines them: not the job's own validation
+views.
 
 Columns: seconds from the command's start to its first optimisation step (from its report),
 steps, wall seconds, what shipped, the gain over bicubic per set, the share of the texel
@@ -12,14 +13,17 @@ ceiling's gain on Q (``--ceiling``: JSON rows of ``benchmarks/texel_ceiling.py``
 the file is below the best filter on any set (the filters scored in the file's UVs as written
 where it keeps the mesh's layout: :data:`KEPT_UV_TOLERANCE`).
 
+With ``--uv auto keep`` the summary also gives, per scale, budget and load, auto's gain on Q
+over keep's on the same mesh: the mean and the worst mesh.
+
 ``--loop JSON`` overrides settings of the learned method's loop (``OptimizeConfig`` fields, as
 ``geoscaler.cli.main(optimize=...)`` takes them; e.g. ``'{"distances": [[1.8, 3.0]]}'``): to
 measure a setting in the job itself, as users run it.
 
 Usage:
     python benchmarks/budget.py [PATH ...] [--scale 4 8] [--budget 15 30 60]
-        [--load idle busy] [--sets 2.4 1.5 4.0] [--ceiling CEILING.json ...] [--loop JSON]
-        [--out DIR]
+        [--load idle busy] [--uv auto keep] [--sets 2.4 1.5 4.0] [--ceiling CEILING.json ...]
+        [--loop JSON] [--out DIR]
 
 PATH: mesh files or folders (default: ../shared/data). Writes ``budget.json`` and
 ``budget.md`` into ``--out`` (default: /tmp/geoscaler_budget).
@@ -28,6 +32,7 @@ PATH: mesh files or folders (default: ../shared/data). Writes ``budget.json`` an
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import statistics
@@ -61,16 +66,22 @@ its call)."""
 
 
 def run_downsample(
-    mesh: Path, scale: int, budget: float, busy: bool, out: Path, loop: str | None = None
+    mesh: Path,
+    scale: int,
+    budget: float,
+    busy: bool,
+    out: Path,
+    loop: str | None = None,
+    uv: str = "auto",
 ) -> dict:
     """One ``geoscaler downsample`` as a user runs it (``loop``: JSON overrides of the loop's
-    settings); its report's facts and the wall time."""
+    settings; ``uv``: its ``--uv``); its report's facts and the wall time."""
     mesh, out = mesh.resolve(), out.resolve()
     output, report = out / "out.glb", out / "report.json"
     cli = ["-m", "geoscaler.cli"] if loop is None else ["-c", LOOP_OVERRIDE, loop]
     command = [sys.executable, *cli, "downsample", str(mesh), "--scale",
-               str(scale), "--time-budget", str(budget), "-o", str(output), "--report",
-               str(report), "--force"]  # fmt: skip
+               str(scale), "--time-budget", str(budget), "--uv", uv, "-o", str(output),
+               "--report", str(report), "--force"]  # fmt: skip
     load_before = os.getloadavg()[0]  # the 1-minute load average: what else was running
     neighbour = subprocess.Popen([sys.executable, "-c", BUSY_LOOP]) if busy else None
     try:
@@ -83,7 +94,7 @@ def run_downsample(
         if neighbour is not None:
             neighbour.kill()
             neighbour.wait()
-    log = out / f"{mesh.parent.name}_x{scale}_{budget:g}s_{'busy' if busy else 'idle'}.log"
+    log = out / f"{mesh.parent.name}_x{scale}_{budget:g}s_{'busy' if busy else 'idle'}_{uv}.log"
     log.write_text(done.stderr)  # the command's progress and messages, to read afterwards
     if done.returncode != 0:
         raise RuntimeError(f"{mesh} x{scale} {budget}s: {done.stderr.strip()[-500:]}")
@@ -192,6 +203,7 @@ def main() -> int:
     parser.add_argument("--scale", type=int, nargs="+", default=[4, 8])
     parser.add_argument("--budget", type=float, nargs="+", default=[15.0, 30.0, 60.0])
     parser.add_argument("--load", nargs="+", choices=["idle", "busy"], default=["idle", "busy"])
+    parser.add_argument("--uv", nargs="+", choices=["auto", "keep"], default=["auto"])
     parser.add_argument("--sets", type=float, nargs="+", default=[2.4])
     parser.add_argument("--ceiling", nargs="*", default=[])
     parser.add_argument("--loop", help="JSON overrides of the learned method's loop settings")
@@ -205,13 +217,10 @@ def main() -> int:
         name = entry.path.parent.name
         for scale in args.scale:
             runs = []
-            for budget in args.budget:
-                for load in args.load:
-                    busy = load == "busy"
-                    run = run_downsample(entry.path, scale, budget, busy, out, args.loop)
-                    runs.append(
-                        {"mesh": name, "scale": scale, "budget": budget, "load": load, **run}
-                    )
+            for budget, load, uv in itertools.product(args.budget, args.load, args.uv):
+                run = run_downsample(entry.path, scale, budget, load == "busy", out, args.loop, uv)
+                facts = {"mesh": name, "scale": scale, "budget": budget, "load": load, "uv": uv}
+                runs.append({**facts, **run})
             filters = score_runs(entry.path, scale, args.sets, runs)
             for run in runs:
                 del run["output"], run["uvs"]
@@ -236,21 +245,22 @@ def format_row(run: dict, sets: list[float]) -> str:
     gains = " ".join(f"{run['gain_db'][d]:+6.2f}" for d in sets)
     share = "" if run["ceiling_share"] is None else f"{100 * run['ceiling_share']:5.0f}%"
     return (
-        f"{run['mesh']:26} x{run['scale']} {run['budget']:>4.0f}s {run['load']:5} first "
+        f"{run['mesh']:26} x{run['scale']} {run['budget']:>4.0f}s {run['load']:5} "
+        f"{run['uv']:4} first "
         f"{run['first_step_s'] or 0:5.1f}s steps {run['steps'] or 0:4} wall {run['wall_s']:6.1f}s "
         f"{run['shipped']:8} gain {gains} {share} {'BELOW' if run['below_best_filter'] else ''}"
     )
 
 
 def markdown(rows: list[dict], sets: list[float]) -> str:
-    head = "| mesh | scale | budget | load | first step s | steps | wall s | shipped | "
+    head = "| mesh | scale | budget | load | uv | first step s | steps | wall s | shipped | "
     head += " | ".join(f"gain {d:g}" for d in sets) + " | ceiling share | below a filter |"
-    lines = [head, "|" + " --- |" * (10 + len(sets) - 1)]
+    lines = [head, "|" + " --- |" * (11 + len(sets) - 1)]
     for r in rows:
         share = "" if r["ceiling_share"] is None else f"{100 * r['ceiling_share']:.0f}%"
         gains = " | ".join(f"{r['gain_db'][d]:+.2f}" for d in sets)
         lines.append(
-            f"| {r['mesh']} | x{r['scale']} | {r['budget']:.0f} | {r['load']} | "
+            f"| {r['mesh']} | x{r['scale']} | {r['budget']:.0f} | {r['load']} | {r['uv']} | "
             f"{r['first_step_s']} | {r['steps']} | {r['wall_s']:.1f} | {r['shipped']} | "
             f"{gains} | {share} | {'yes' if r['below_best_filter'] else 'no'} |"
         )
@@ -258,24 +268,49 @@ def markdown(rows: list[dict], sets: list[float]) -> str:
 
 
 def summary(rows: list[dict], sets: list[float]) -> str:
-    """Per scale, budget and load: mean and worst gain on Q, worst wall-clock overrun, the
-    slowest first step, the lowest ceiling share and how many files fell below a filter."""
+    """Per scale, budget, load and UV mode: mean and worst gain on Q, worst wall-clock overrun,
+    the slowest first step, the lowest ceiling share and how many files fell below a filter;
+    then auto against keep where both ran (:func:`auto_over_keep`)."""
     lines = []
-    keys = sorted({(r["scale"], r["budget"], r["load"]) for r in rows})
-    for scale, budget, load in keys:
-        mine = [r for r in rows if (r["scale"], r["budget"], r["load"]) == (scale, budget, load)]
+    keys = sorted({(r["scale"], r["budget"], r["load"], r["uv"]) for r in rows})
+    for key in keys:
+        scale, budget, load, uv = key
+        mine = [r for r in rows if (r["scale"], r["budget"], r["load"], r["uv"]) == key]
         gains = [r["gain_db"][sets[0]] for r in mine]
         shares = [r["ceiling_share"] for r in mine if r["ceiling_share"] is not None]
         overrun = max(r["wall_s"] / budget - 1 for r in mine)
         first = max(r["first_step_s"] or 0 for r in mine)
         share = f", ceiling share min {100 * min(shares):.0f}%" if shares else ""
+        worst = min(mine, key=lambda r: r["gain_db"][sets[0]])["mesh"]
         lines.append(
-            f"x{scale} {budget:.0f} s {load}: {len(mine)} meshes, gain on Q mean "
-            f"{statistics.mean(gains):+.2f} worst {min(gains):+.2f} dB{share}, wall at most "
-            f"{100 * overrun:+.0f}% of the budget, first step by {first:.1f} s, below a filter: "
-            f"{sum(r['below_best_filter'] for r in mine)}"
+            f"x{scale} {budget:.0f} s {load} {uv}: {len(mine)} meshes, gain on Q mean "
+            f"{statistics.mean(gains):+.2f} worst {min(gains):+.2f} dB ({worst}){share}, wall at "
+            f"most {100 * overrun:+.0f}% of the budget, first step by {first:.1f} s, below a "
+            f"filter: {sum(r['below_best_filter'] for r in mine)}"
         )
-    return "\n".join(lines)
+    return "\n".join(lines + auto_over_keep(rows, sets[0]))
+
+
+def auto_over_keep(rows: list[dict], distance: float) -> list[str]:
+    """Per scale, budget and load where both modes ran: auto's gain on the first set minus
+    keep's, mesh by mesh; the mean and the worst mesh."""
+    lines = []
+    for scale, budget, load in sorted({(r["scale"], r["budget"], r["load"]) for r in rows}):
+        gain = {
+            (r["mesh"], r["uv"]): r["gain_db"][distance]
+            for r in rows
+            if (r["scale"], r["budget"], r["load"]) == (scale, budget, load)
+        }
+        both = sorted({m for m, _ in gain if (m, "auto") in gain and (m, "keep") in gain})
+        if not both:
+            continue
+        over = {m: gain[m, "auto"] - gain[m, "keep"] for m in both}
+        worst = min(over, key=over.get)
+        lines.append(
+            f"x{scale} {budget:.0f} s {load}: auto over keep on Q, {len(both)} meshes: mean "
+            f"{statistics.mean(over.values()):+.2f}, worst {over[worst]:+.2f} dB ({worst})"
+        )
+    return lines
 
 
 if __name__ == "__main__":
