@@ -26,7 +26,8 @@ Usage:
         [--loop JSON] [--out DIR]
 
 PATH: mesh files or folders (default: ../shared/data). Writes ``budget.json`` and
-``budget.md`` into ``--out`` (default: /tmp/geoscaler_budget).
+``budget.md`` into ``--out`` (default: /tmp/geoscaler_budget), and beside them each run's report
+and log (``MESH_xS_Bs_LOAD_UV.json`` and ``.log``: the race's trials are in the report).
 """
 
 from __future__ import annotations
@@ -77,7 +78,8 @@ def run_downsample(
     """One ``geoscaler downsample`` as a user runs it (``loop``: JSON overrides of the loop's
     settings; ``uv``: its ``--uv``); its report's facts and the wall time."""
     mesh, out = mesh.resolve(), out.resolve()
-    output, report = out / "out.glb", out / "report.json"
+    run = f"{mesh.parent.name}_x{scale}_{budget:g}s_{'busy' if busy else 'idle'}_{uv}"
+    output, report = out / "out.glb", out / f"{run}.json"  # each run's report is kept
     cli = ["-m", "geoscaler.cli"] if loop is None else ["-c", LOOP_OVERRIDE, loop]
     command = [sys.executable, *cli, "downsample", str(mesh), "--scale",
                str(scale), "--time-budget", str(budget), "--uv", uv, "-o", str(output),
@@ -94,7 +96,7 @@ def run_downsample(
         if neighbour is not None:
             neighbour.kill()
             neighbour.wait()
-    log = out / f"{mesh.parent.name}_x{scale}_{budget:g}s_{'busy' if busy else 'idle'}_{uv}.log"
+    log = out / f"{run}.log"
     log.write_text(done.stderr)  # the command's progress and messages, to read afterwards
     if done.returncode != 0:
         raise RuntimeError(f"{mesh} x{scale} {budget}s: {done.stderr.strip()[-500:]}")
