@@ -176,6 +176,27 @@ def test_trilinear_taps_are_bilinear_on_two_levels_and_skip_the_unweighted_one()
     assert bool(expected_weight[~tapped].eq(0).all())  # what is skipped weighs nothing
 
 
+def test_taps_of_rows_are_the_trilinear_taps_level_by_level():
+    torch.manual_seed(3)
+    layout = MipLayout(8, 16)
+    u, v = torch.rand(5, dtype=torch.float64), torch.rand(5, dtype=torch.float64)
+    scale = torch.tensor([0.25, 0.5, 2**0.25, 2**1.5, 2.0**9], dtype=torch.float64)  # lod -2..9
+    zero = torch.zeros(5, dtype=torch.float64)
+    footprint = UVFootprint(u, v, scale / 16, zero, zero, scale / 8)
+    row = torch.tensor([0, 2, 1, 2, 0], dtype=torch.int32)  # samples 1 and 3 share row 2
+    row_of_tap, texel, weight = layout.taps_of_rows(footprint, row)
+    count, by_sample, sample_weight = layout.taps(footprint)
+    fine = torch.arange(8).view(2, 4)[0]
+    first = torch.cumsum(count, 0) - count
+    # the finer level's four taps of every sample, then the coarser level's of samples 2, 3
+    fine_taps = (first[:, None] + fine).T.reshape(-1)
+    coarse_taps = (first[[2, 3]] + 4 + fine[:, None]).reshape(-1)
+    order = torch.cat([fine_taps, coarse_taps])
+    assert row_of_tap.tolist() == [*row.tolist() * 4, *row[[2, 3]].tolist() * 4]
+    assert torch.equal(texel, by_sample[order])
+    assert torch.equal(weight, sample_weight[order])
+
+
 @pytest.mark.parametrize(
     ("jacobian", "expected"),
     [
