@@ -134,8 +134,8 @@ class TrialFacts:
         one at least and already ranked above the first trial.
         start_below: set name -> how far (dB) the layout's start (its bake) validated below
         the best filter there beyond the noise, on the sets where it did (a new layout's
-        trial only; None: not measured); gated: it started more than the race's margin below
-        on some set, so it had no trial (``steps`` 0, the scores its start's).
+        trial only; None: not measured); gated: it started below on some set, so it had no
+        trial (``steps`` 0, the scores its start's).
     """
 
     steps: int

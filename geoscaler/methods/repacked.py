@@ -71,11 +71,6 @@ before the better one goes on (:func:`raced`)."""
 NEW_LAYOUTS = ("repack", "unaligned")
 """The names of the new layouts a race may weigh: the planned one, and where that aligned its
 charts to the original's mip blocks, the unaligned one (:func:`_timely_layouts`)."""
-START_MARGIN = 1.5
-"""``--uv auto``: how far (dB, beyond the noise) a new layout's start, its bake, may validate
-below the best filter in the mesh's own layout on any set and still get a trial
-(:func:`start_below`): a trial's few steps do not make up more. Provisional: not yet
-checked against the trials' outcomes on the development set."""
 PREPARING_SHARE = 0.4
 """Under a time budget, the share of the time left when planning starts (``--uv auto``: after
 the own layout's trial) by which the new layouts are planned and baked, the rest left to the
@@ -671,9 +666,11 @@ class _Trials:
         sets the step count of the others to the steps it made; they run to the method's end at
         most. A trial after the first finds its layout's taps in the validation views (frozen
         by the first) before its time starts: that is the layout's cost, not its steps'.
-        After the mesh's own layout's trial, a new layout whose start validates more than
-        :data:`START_MARGIN` below the best filter on some set (:func:`start_below`) gets no
-        trial (:attr:`gated`)."""
+        After the mesh's own layout's trial, a new layout whose start validates below the
+        best filter on some set beyond the noise (:func:`start_below`) gets no trial
+        (:attr:`gated`): the own layout's trial gained on every set from a start at the filters
+        (Lanczos), so such a trial would have to out-learn it there, which no trial on the
+        development set did (docs/decisions/keep-first-race.md)."""
         first = not self.results
         handover: dict[str, Any] = {}
         if not first:
@@ -682,7 +679,7 @@ class _Trials:
                 with torch.no_grad():
                     start = validate(layout.validation, model.candidate())
                 self.starts[name] = below = start_below(layout.validation, start)
-                if any(gap > START_MARGIN for gap in below.values()):
+                if below:
                     self.gated[name] = _gated_facts(layout.validation, start, below)
                     return
                 handover["start_scores"] = start
@@ -758,7 +755,7 @@ def start_below(validation: Validation, start: Scores) -> dict[str, float]:
 
 
 def _gated_facts(validation: Validation, start: Scores, below: dict[str, float]) -> TrialFacts:
-    """The facts of a layout that had no trial, its start too far below a filter."""
+    """The facts of a layout that had no trial, its start below a filter."""
     rank = validation.rank(start)
     return _trial_facts(start, rank, 0, below_own_on=[], start_below=below, gated=True)
 
