@@ -186,11 +186,11 @@ def test_taps_of_rows_are_the_trilinear_taps_level_by_level():
     row = torch.tensor([0, 2, 1, 2, 0], dtype=torch.int32)  # samples 1 and 3 share row 2
     row_of_tap, texel, weight = layout.taps_of_rows(footprint, row)
     count, by_sample, sample_weight = layout.taps(footprint)
-    fine = torch.arange(8).view(2, 4)[0]
-    first = torch.cumsum(count, 0) - count
+    four = torch.arange(4)
+    first = torch.cumsum(count, 0) - count  # each sample's first tap, sample by sample
     # the finer level's four taps of every sample, then the coarser level's of samples 2, 3
-    fine_taps = (first[:, None] + fine).T.reshape(-1)
-    coarse_taps = (first[[2, 3]] + 4 + fine[:, None]).reshape(-1)
+    fine_taps = (first[:, None] + four).T.reshape(-1)
+    coarse_taps = (first[[2, 3]] + 4 + four[:, None]).reshape(-1)
     order = torch.cat([fine_taps, coarse_taps])
     assert row_of_tap.tolist() == [*row.tolist() * 4, *row[[2, 3]].tolist() * 4]
     assert torch.equal(texel, by_sample[order])
