@@ -43,9 +43,12 @@ def view_costs(path: Path, scale: int, views: int) -> dict:
     started = time.perf_counter()
     gbuffers = [renderer.rasterize(camera) for camera in cameras]
     rasterized = time.perf_counter()
-    for gbuffer in gbuffers:
-        renderer.render_reference(gbuffer)
+    references = [renderer.render_reference(gbuffer) for gbuffer in gbuffers]
     referenced = time.perf_counter()
+    renderer.view_memo = {  # the view set takes these views instead of rendering them again
+        (camera.direction, camera.distance): (gbuffer, reference, renderer.foreground(gbuffer))
+        for camera, gbuffer, reference in zip(cameras, gbuffers, references, strict=True)
+    }
     cache = ViewCache(ViewSet(renderer, cameras), sizes, with_taps=True)
     tapped_from = time.perf_counter()
     cache.find_taps(len(cameras) - 1)
