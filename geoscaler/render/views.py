@@ -263,14 +263,15 @@ class ViewCache:
         if isinstance(gbuffer, SoftFragments):
             image = self.renderer.untextured(gbuffer, plain)
         else:
-            image = self._untextured_image(gbuffer)
+            image = self._untextured_image(gbuffer, plain)
         return image.index_select(1, pixels).T.contiguous()
 
-    def _untextured_image(self, gbuffer: GBuffer) -> torch.Tensor:
-        """``(3, pixels)`` linear colour contributed by samples of untextured materials."""
+    def _untextured_image(self, gbuffer: GBuffer, plain: Sequence[bool]) -> torch.Tensor:
+        """``(3, pixels)`` linear colour contributed by samples of the ``plain`` (untextured)
+        materials."""
         material = self.renderer.face_material.index_select(0, gbuffer.tri_ids)
-        plain = torch.tensor([layout is None for layout in self.layouts], device=material.device)
-        hit = torch.nonzero(plain[material]).squeeze(1)
+        is_plain = torch.tensor(plain, device=material.device)
+        hit = torch.nonzero(is_plain[material]).squeeze(1)
         colours = self.renderer.factors.T.index_select(1, material[hit])
         image = colours.new_zeros(3, self.renderer.image_size**2)
         pixels = self.renderer.pixel_of_sample(gbuffer)[hit]
