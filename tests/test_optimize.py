@@ -1,7 +1,9 @@
 """The optimisation loop and method `direct` on a small procedural mesh."""
 
+import gc
 import math
 import threading
+import weakref
 
 import numpy as np
 import pytest
@@ -662,6 +664,54 @@ def test_under_a_budget_the_views_owed_in_any_case_are_not_held_back(
     model, config = lanczos_model(mesh), small_config(time_budget=20.0, steps=6)
     optimize(slow, model, config, validation, budget=Budget(clock, 0.0, 20.0), on_event=on_event)
     assert [cached_at_step[step] for step in (1, 2, 3, 4)] == [1, 4, 6, 8]
+
+
+def test_under_a_budget_the_views_owed_in_any_case_are_cached_at_the_memory_limit(
+    scene, monkeypatch
+):
+    # The process holds its memory limit from the start (a race's later trial, the trials
+    # before it holding their views): the views owed in any case still come, and no view
+    # beyond them. After step 1, two owed views, then the validation freezes at the limit,
+    # caching its least (Q 3, near 2, far 2) first: 9 views as step 2 ends; after step 2 the
+    # pool's last owed view (4, views_per_step): 11. A pool of one view for the whole loop
+    # trained it to that view alone.
+    mesh, _, views = scene
+    monkeypatch.setattr(loop_module, "resident_bytes", lambda: 2_000_000_000)
+    clock = ManualClock()
+    slow = slow_run(scene, monkeypatch, clock, view_seconds=0.25, step_seconds=0.0625)
+    uncached = {name: ViewSet(slow, v.cameras, eager=False) for name, v in views.items()}
+    validation = Validation(uncached, output_sizes(mesh, SCALE), clock=clock)
+    cached_at_step = {}
+
+    def on_event(event):
+        if event.phase == "step":
+            cached_at_step[event.step] = event.done
+
+    model = lanczos_model(mesh)
+    config = small_config(time_budget=20.0, steps=8, memory_limit=1_000_000_000)
+    budget = Budget(clock, 0.0, 20.0)
+    result = optimize(slow, model, config, validation, budget=budget, on_event=on_event)
+    assert [cached_at_step[step] for step in range(1, 9)] == [1, 9, 11, 11, 11, 11, 11, 11]
+    assert result.training_views == 4
+    assert result.validation_views == {"Q": 3, "near": 2, "far": 2}
+
+
+def test_a_finished_loop_leaves_its_training_pool_to_reference_counting(scene):
+    # Nothing of a finished loop refers back to itself: the pool it trained on is freed as
+    # its last holder lets go, not at the garbage collector's next pass (a race's losing
+    # layout kept the memory its winner's pool was to grow into).
+    mesh, renderer, views = scene
+    validation = fresh_validation(scene)
+    pool = training_views(renderer, views["Q"].cameras[:4], validation.sizes, True)
+    setup = LoopSetup(pool=pool)
+    gc.disable()
+    try:
+        optimize(renderer, lanczos_model(mesh), small_config(steps=2), validation, setup)
+        freed = weakref.ref(pool)
+        del pool, setup
+        assert freed() is None
+    finally:
+        gc.enable()
 
 
 def test_no_view_is_cached_after_a_step_past_the_loops_budget(scene, monkeypatch):

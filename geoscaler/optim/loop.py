@@ -333,7 +333,8 @@ class _Caching:
     (:data:`CACHING_SHARE` unless told), or once the cached views hold ``config.view_memory``
     bytes, the pool stops growing and the validation freezes at what is cached. While the
     process holds ``config.memory_limit`` the validation freezes and the pool waits for a step
-    that leaves room.
+    that leaves room. Under a budget the views owed in any case (:meth:`_cache_owed`) are
+    cached past the caching window and both memory bounds.
     """
 
     def __init__(
@@ -398,7 +399,9 @@ class _Caching:
         pool's mean cost and what must follow the loop still fit its budget (no view is
         cached past it, owed or not), under a budget first up to
         :data:`CACHED_PER_STEP` views owed in any case (:meth:`_cache_owed`, even past the
-        caching window), then :data:`CACHED_PER_STEP` views (under a budget, fewer where
+        caching window, the view memory and the memory limit: a few views, where a pool of
+        one view trains a loop to that view alone), then :data:`CACHED_PER_STEP` views
+        (under a budget, fewer where
         caching would take more than :data:`CACHING_PER_STEPPING` of the steps' seconds so
         far); past the caching window or the view memory, :meth:`close`; at the process's
         memory limit, none this step (the validation sets freeze at what they have; the pool
@@ -407,7 +410,7 @@ class _Caching:
         (:func:`~geoscaler.process.release_free_memory`)."""
         self.stepping += step_seconds
         for _ in range(CACHED_PER_STEP if self.budget.limited else 0):
-            if not self._room_for_a_view(fits) or not self._cache_owed():
+            if not fits(self.view_cost.mean) or not self._cache_owed():
                 break
         if self.window.left() < 0 or self.views_full():
             self.close()
@@ -595,6 +598,35 @@ class LoopState:
     history: list[dict] = field(default_factory=list)
 
 
+@dataclass(frozen=True)
+class _Reporter:
+    """Reports a loop's progress events at its current step, counted as the run counts
+    (:class:`Phase`); a phase's caching and end are reported where it says so.
+
+    Apart from the loop, so that the loop's caching reports through it without holding the
+    loop: a reference cycle would keep a finished loop, and the training pool it holds, alive
+    until the garbage collector runs (a race's losing pool then held the memory the winner's
+    pool was to grow into).
+    """
+
+    phase: Phase
+    state: LoopState
+    steps: int
+    budget: Budget
+    emit: Callable[[ProgressEvent], None]
+
+    def __call__(self, kind: str, **fields: object) -> None:
+        phase = self.phase
+        if (kind == "caching" and not phase.reports_caching) or (
+            kind == "done" and not phase.reports_done
+        ):
+            return
+        start = self.budget.start if phase.run_start is None else phase.run_start
+        step = phase.steps_before + self.state.step
+        total = phase.total_steps or self.steps
+        self.emit(ProgressEvent(kind, step, total, self.budget.now() - start, **fields))
+
+
 class TrainingLoop:
     """The loop of :func:`optimize`: cache the views the first step needs, then step,
     cache more views, validate when due and back-track, until the steps, the budget, a
@@ -639,6 +671,7 @@ class TrainingLoop:
             isinstance(model, Sloped) and self.keeps_uvs and pool.with_taps and plain_l2
         )
         share = setup.caching_share
+        self._report = _Reporter(self.phase, self.state, config.steps, budget, self.emit)
         self.caching = _Caching(pool, validation, config, budget, self._report, share)
         self.start_state: Candidate | None = None
 
@@ -697,19 +730,6 @@ class TrainingLoop:
                                         self.renderer.resolution)  # fmt: skip
                 self._reachable = [None if m is None else m.to(self.renderer.device) for m in masks]
         return self._reachable
-
-    def _report(self, kind: str, **fields: object) -> None:
-        """Report a progress event of ``kind`` at the current step, counted as the run counts
-        (:class:`Phase`); a phase's caching and end are reported where it says so."""
-        phase = self.phase
-        if (kind == "caching" and not phase.reports_caching) or (
-            kind == "done" and not phase.reports_done
-        ):
-            return
-        start = self.budget.start if phase.run_start is None else phase.run_start
-        step = phase.steps_before + self.state.step
-        total = phase.total_steps or self.config.steps
-        self.emit(ProgressEvent(kind, step, total, self.budget.now() - start, **fields))
 
     # ------------------------------------------------------------------------------ a step
 
