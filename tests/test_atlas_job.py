@@ -186,6 +186,7 @@ def fake_race(
     view_cost: float = 0.0,
     tap_cost: float = 0.0,
     validation_seconds: float = 0.0,
+    dropped: list | None = None,
 ):
     """``--uv auto``'s race with every phase's loop faked: the first trial makes
     ``first_made`` steps and stops for ``first_stopped_by`` (taking 2.5 s where the context's
@@ -198,7 +199,8 @@ def fake_race(
     layouts whose training pool was still held as the race's last phase started; ``ends``
     receives ``(layout, loop end, reserve)`` per phase. The race runs in ``context`` (default:
     no budget); the new layout has an atlas. With ``worst`` (each filter's lowest PSNR-fg
-    over the validation's views) the job finishes where nothing visible is left to gain."""
+    over the validation's views) the job finishes where nothing visible is left to gain.
+    ``dropped`` receives the layouts whose validation taps were dropped."""
     import gc
     import weakref
     from types import SimpleNamespace
@@ -213,6 +215,7 @@ def fake_race(
     scores = Scores({"Q": 40.0}, {"Q": np.array([40.0, 41.0, 39.0])})  # every trial's, tied
     better = Scores({"Q": 41.0}, {"Q": np.array([41.0, 42.0, 40.0])})
     ends = [] if ends is None else ends
+    dropped = [] if dropped is None else dropped
 
     def fit(self, mesh, rule, layout, model, loop_end, reserve, steps, facts=None, **handover):
         made, stopped_by = (first_made, first_stopped_by) if self.first else (steps, "steps")
@@ -256,9 +259,8 @@ def fake_race(
     def layout(name: str) -> SimpleNamespace:
         cpu = SimpleNamespace(device="cpu", layout=name)
         atlas = None if name == "keep" else SimpleNamespace(facts=None)
-        return SimpleNamespace(
-            name=name, validation=validation, atlas=atlas, starts=[], renderer=cpu
-        )
+        mine = SimpleNamespace(**vars(validation), drop_taps=lambda: dropped.append(name))
+        return SimpleNamespace(name=name, validation=mine, atlas=atlas, starts=[], renderer=cpu)
 
     def later(trial_seconds: float) -> dict:
         planned.append(True)
@@ -299,11 +301,17 @@ def test_a_new_layout_ends_its_trial_and_loop_before_the_rebake_of_the_other_map
 
 
 def test_the_winner_goes_on_without_the_losers_training_pools(monkeypatch):
-    """The trials fill the method's memory limit between them: the loser's pool (its taps)
-    is dropped before the winner's loop goes on, so that the winner's pool can grow."""
-    result, facts, fits, plans, alive = fake_race(monkeypatch, 2, "steps")
+    """The trials fill the method's memory limit between them: the loser's pool and its
+    validation taps are dropped before the winner's loop goes on, so that the winner's pool
+    can grow."""
+    dropped = []
+    result, facts, fits, plans, alive = fake_race(monkeypatch, 2, "steps", dropped=dropped)
     assert plans == 1 and fits == [("keep", 2), ("repack", 2), ("keep", 8)]  # a tie: the own
     assert alive == ["keep"] and result.loop.steps == 12  # the loser's 2 on top
+    assert dropped == ["repack"]
+    dropped.clear()
+    fake_race(monkeypatch, 2, "steps", winner="repack", dropped=dropped)
+    assert dropped == ["keep"]  # the job's validation's taps, found again where needed
 
 
 def test_a_first_trial_of_no_step_ends_the_race_and_its_layout_goes_on(monkeypatch):
@@ -388,6 +396,39 @@ def test_the_first_trials_share_is_of_the_time_left_after_what_the_race_pays_onc
     assert trials._first_deadline(validation) == 24.0
     unbudgeted = repacked._Trials(OptimizeConfig(steps=10), RunContext(), 0.0, None, [])
     assert unbudgeted._first_deadline(validation) is None
+
+
+def test_a_later_trial_takes_the_earlier_pools_taps_where_the_memory_limit_holds_no_more(
+    monkeypatch,
+):
+    """A later trial trains on the first trial's cameras, their G-buffers shared: its pool
+    adds taps as large as the earlier pools'. Where the process cannot hold them under the
+    method's memory limit, the earlier pools' taps go (found again where that layout wins)."""
+    import geoscaler.methods.repacked as repacked
+    from geoscaler.optim.loop import OptimizeConfig
+
+    class Pool:
+        nbytes, dropped = 300, False
+
+        def drop_taps(self):
+            self.dropped = True
+
+    released = []
+    monkeypatch.setattr(repacked, "release_free_memory", lambda: released.append(True))
+    config = OptimizeConfig(steps=10, memory_limit=1000)
+    trials = repacked._Trials(config, RunContext(), 0.0, None, [])
+    trials.pools = {"keep": Pool()}
+    monkeypatch.setattr(repacked, "resident_bytes", lambda: 699)  # 699 + 300 < 1000: room
+    trials._room_for_a_pool()
+    assert not trials.pools["keep"].dropped and not released
+    monkeypatch.setattr(repacked, "resident_bytes", lambda: 700)  # 700 + 300: no room
+    trials._room_for_a_pool()
+    assert trials.pools["keep"].dropped and released == [True]
+    unknown = repacked._Trials(config, RunContext(), 0.0, None, [])
+    unknown.pools = {"keep": Pool()}
+    monkeypatch.setattr(repacked, "resident_bytes", lambda: None)  # the system cannot say
+    unknown._room_for_a_pool()
+    assert not unknown.pools["keep"].dropped
 
 
 def test_a_later_phase_times_its_first_step_from_the_methods_start():

@@ -314,6 +314,18 @@ def test_cached_taps_give_the_renderers_gradient(scene):
     torch.testing.assert_close(gradients[0], gradients[1], atol=1e-5, rtol=1e-4)
 
 
+def test_dropped_taps_are_found_again_as_a_view_is_next_rendered(scene):
+    _, _, views = scene
+    cache = ViewCache(views["Q"], [(32, 32)], with_taps=True)
+    texture = torch.rand(32, 32, 3)
+    before = cache.render(1, [texture], None)  # finds the taps of views 0 and 1
+    held = cache.nbytes
+    cache.drop_taps()
+    assert held > 0 and cache.nbytes == 0 and len(cache.views) == len(views["Q"])
+    torch.testing.assert_close(cache.render(1, [texture], None), before, rtol=0, atol=0)
+    assert cache.nbytes == held
+
+
 def test_cached_taps_handle_several_and_untextured_materials():
     mesh = three_material_demo()
     renderer = Renderer(mesh, "cpu", Evaluation(image_size=32))

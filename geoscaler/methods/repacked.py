@@ -54,7 +54,7 @@ from geoscaler.optim.validation import (
     sets_below,
     validation_view_sets,
 )
-from geoscaler.process import release_free_memory
+from geoscaler.process import release_free_memory, resident_bytes
 from geoscaler.render.cameras import Camera, sample_training_cameras
 from geoscaler.render.renderer import Renderer
 from geoscaler.render.views import ViewCache, training_views
@@ -392,7 +392,10 @@ def raced(
     every layout; a tie keeps the mesh's own); a new layout whose trial is below the own one's
     on some set is out (:func:`_winner`). The winner's loop goes on from its validated
     best, with its training pool (growing again) and that best's scores as its start's, so
-    what ships is never below the better trial on the validation views.
+    what ships is never below the better trial on the validation views. The losers' pools
+    and validation taps go first: the pool grows within the method's memory limit (the own
+    layout's validation is the job's; where anything scores in the mesh's UVs again, its
+    taps are found again).
     The winner makes the steps asked, its trial's counted; the losers' trial steps come on top
     (the result's ``steps`` and ``best_step`` count from the race's first step). One layout,
     or fewer steps than layouts (no room for a trial in each): the first goes on alone (the
@@ -427,7 +430,10 @@ def raced(
     first_step = _first_step(race.results.values())
     best, layout, model = race.results[winner], layouts[winner], race.models[winner]
     race.keep_only(winner)
-    layouts = {winner: layout}  # the losers' validation taps go with them
+    for name, loser in layouts.items():
+        if name != winner:
+            loser.validation.drop_taps()
+    layouts = {winner: layout}
     release_free_memory()
     best_step = best.loop.best_step
     steps_left = config.steps - best.loop.steps
@@ -675,6 +681,7 @@ class _Trials:
         handover: dict[str, Any] = {}
         if not first:
             layout.validation.find_taps()
+            self._room_for_a_pool()
             if "keep" in self.results:
                 with torch.no_grad():
                     start = validate(layout.validation, model.candidate())
@@ -699,6 +706,22 @@ class _Trials:
         self.steps += result.loop.steps
         if first:
             self.steps_each = result.loop.steps
+
+    def _room_for_a_pool(self) -> None:
+        """Where the process could not hold one more training pool as large as the earlier
+        trials' under the method's memory limit, forget their taps (found again where one of
+        those layouts goes on): the trials share the training cameras and, through the
+        renderers' memo, their G-buffers, so what a pool adds is its taps. Each trial then
+        trains on as many views as the first; at the limit a later trial's pool stopped at
+        the views every loop owes (bob at 8x and 60 s: 4 against the first trial's 14)."""
+        limit, resident = self.config.memory_limit, resident_bytes()
+        if limit is None or resident is None:
+            return
+        if resident + sum(pool.nbytes for pool in self.pools.values()) < limit:
+            return
+        for pool in self.pools.values():
+            pool.drop_taps()
+        release_free_memory()
 
     def least_later(self, validation: Validation) -> float:
         """Seconds a later trial takes at least to be ranked (:func:`_ranked`), with the loop's

@@ -219,6 +219,12 @@ class Validation:
         self.freeze()
         self.views.find_taps()
 
+    def drop_taps(self) -> None:
+        """Forget every view's taps (:meth:`ViewCache.drop_taps`; found again as each view is
+        next rendered); the views, their counts and the scores kept stay."""
+        for cache in self.sets.values():
+            cache.drop_taps()
+
     def freeze(self, least: Mapping[str, int] = MIN_FROZEN) -> None:
         """Validate on the views cached so far from now on, caching first the ``least`` views of
         each set (:data:`MIN_FROZEN`; a set not named there: none more)."""

@@ -197,6 +197,12 @@ class ViewCache:
         per_view = self.untextured + self.object_pixels + self._object_references
         return taps + tensor_bytes(per_view)
 
+    def drop_taps(self) -> None:
+        """Forget every view's taps, object pixels, references and untextured colours: the
+        memory they hold goes back, and each view's are found again as it is next rendered."""
+        self.taps, self.untextured = [], []
+        self.object_pixels, self._object_references = [], []
+
     @torch.no_grad()
     def find_taps(self, view: int) -> None:
         """Find the taps of every cached view up to ``view`` (nothing without taps)."""
