@@ -879,7 +879,8 @@ def test_the_report_says_what_happened_to_the_layout():
         "  b: layout kept, why",
     ]
     race = {
-        "keep": {"steps": 60, "validation_psnr_fg": 30.0, "shortfall_db": 0.0},
+        "keep": {"steps": 60, "validation_psnr_fg": 30.0, "shortfall_db": 0.0,
+                 "training_views": 14},
         "repack": {
             "steps": 55,
             "validation_psnr_fg": 30.5,
@@ -887,15 +888,16 @@ def test_the_report_says_what_happened_to_the_layout():
             "shortfall_db": -0.25,
             "below_own_on": ["far"],
             "unfinished": True,
+            "training_views": 1,
         },
     }
     kept = {**repacked, "uv": "auto", "layout_used": "keep", "race": race}
     assert _layout_lines("direct", kept) == [
         "UV layout (auto): the mesh's own layout kept",
-        "  trials (validation PSNR-fg): own layout Q 30.00 dB after 60 steps; repacked Q 30.50 "
-        "dB, near 29.25, far 31.00 after 55 steps (-0.25 dB below a filter) (below the own "
-        "layout on far) (short of the first trial's steps: ranked only above it); the best on Q "
-        "not below the own layout went on",
+        "  trials (validation PSNR-fg): own layout Q 30.00 dB after 60 steps on 14 training "
+        "views; repacked Q 30.50 dB, near 29.25, far 31.00 after 55 steps on 1 training view "
+        "(-0.25 dB below a filter) (below the own layout on far) (short of the first trial's "
+        "steps: ranked only above it); the best on Q not below the own layout went on",
         "  b: layout kept, why",
     ]
     floored = {**repacked, "shipped": "lanczos"}

@@ -136,6 +136,7 @@ class TrialFacts:
         the best filter there beyond the noise, on the sets where it did (a new layout's
         trial only; None: not measured); gated: it started below on some set, so it had no
         trial (``steps`` 0, the scores its start's).
+        training_views: the views its training pool held as it ended (None: no trial).
     """
 
     steps: int
@@ -146,6 +147,7 @@ class TrialFacts:
     unfinished: bool = False
     start_below: dict[str, float] | None = None
     gated: bool = False
+    training_views: int | None = None
 
 
 @dataclass

@@ -825,6 +825,7 @@ def _winner(
             below_own_on=below[name],
             unfinished=trial.loop.steps < steps_each,
             start_below=starts.get(name),
+            training_views=trial.loop.training_views,
         )
         for name, trial in trials.items()
     }

@@ -492,7 +492,8 @@ def _layout_lines(method: str, details: dict[str, Any]) -> list[str]:
 
 
 def _trial_words(name: str, trial: dict[str, Any]) -> str:
-    """One layout's trial in the race: its validation, steps and why it was out, if it was."""
+    """One layout's trial in the race: its validation, steps, training views and why it was
+    out, if it was."""
     sets = trial.get("validation_sets", {})
     others = "".join(f", {n} {sets[n]:.2f}" for n in ("near", "far") if n in sets)
     below = trial.get("start_below") or {}
@@ -506,6 +507,9 @@ def _trial_words(name: str, trial: dict[str, Any]) -> str:
         f"{LAYOUT_NAMES[name]} Q {trial['validation_psnr_fg']:.2f} dB{others} after "
         f"{trial['steps']} step{'' if trial['steps'] == 1 else 's'}"
     )
+    views = trial.get("training_views")
+    if views:
+        words += f" on {views} training view{'' if views == 1 else 's'}"
     if trial["shortfall_db"] != 0:
         words += f" ({trial['shortfall_db']:+.2f} dB below a filter)"
     if trial.get("below_own_on"):
