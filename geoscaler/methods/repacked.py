@@ -681,7 +681,6 @@ class _Trials:
         handover: dict[str, Any] = {}
         if not first:
             layout.validation.find_taps()
-            self._room_for_a_pool()
             if "keep" in self.results:
                 with torch.no_grad():
                     start = validate(layout.validation, model.candidate())
@@ -690,6 +689,7 @@ class _Trials:
                     self.gated[name] = _gated_facts(layout.validation, start, below)
                     return
                 handover["start_scores"] = start
+            self._room_for_a_pool()
         deadline = self._first_deadline(layout.validation) if first else self.end
         if deadline is not None:  # a new layout's re-bake of the other maps follows
             deadline = min(deadline, self.end - _relayout_reserve(layout, self.context))
