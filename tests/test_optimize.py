@@ -654,14 +654,10 @@ def test_under_a_budget_caching_between_steps_takes_no_more_time_than_the_steps(
     assert result.steps == 30 and result.training_views == 1 + 2 + 8
 
 
-def test_under_a_budget_the_views_owed_in_any_case_are_not_held_back(
-    scene, monkeypatch
-):
-    # Every view takes 0.25 s, a step 0.0625 s. The views owed in any case, the pool's first 4
-    # and the validation's least (Q 3, near 2, far 2), come 2 after each step whatever the
-    # steps took, and after step 1 one more that the balance allows (no caching yet, 0.0625 s
-    # of steps): 1, 4, 6, 8 views cached as steps 1-4 end. Held back like the rest: 1, 2, 2, 2
-    # (one view after step 1, the next once the steps have taken its 0.25 s, after step 4).
+def views_cached_by_step(scene, monkeypatch, steps: int, **overrides):
+    """The loop of the scene's Lanczos start under a 20 s budget of a clock on which caching a
+    view takes 0.25 s and a step 0.0625 s, no validation view cached before: its result, and
+    step -> the views (training and validation) cached as that step ended."""
     mesh, _, views = scene
     clock = ManualClock()
     slow = slow_run(scene, monkeypatch, clock, view_seconds=0.25, step_seconds=0.0625)
@@ -673,8 +669,21 @@ def test_under_a_budget_the_views_owed_in_any_case_are_not_held_back(
         if event.phase == "step":
             cached_at_step[event.step] = event.done
 
-    model, config = lanczos_model(mesh), small_config(time_budget=20.0, steps=6)
-    optimize(slow, model, config, validation, budget=Budget(clock, 0.0, 20.0), on_event=on_event)
+    config = small_config(time_budget=20.0, steps=steps, **overrides)
+    model, budget = lanczos_model(mesh), Budget(clock, 0.0, 20.0)
+    result = optimize(slow, model, config, validation, budget=budget, on_event=on_event)
+    return result, cached_at_step
+
+
+def test_under_a_budget_the_views_owed_in_any_case_are_not_held_back(
+    scene, monkeypatch
+):
+    # The views owed in any case, the pool's first 4 and the validation's least (Q 3, near 2,
+    # far 2), come 2 after each step whatever the steps took, and after step 1 one more that
+    # the balance allows (no caching yet, 0.0625 s of steps): 1, 4, 6, 8 views cached as
+    # steps 1-4 end. Held back like the rest: 1, 2, 2, 2 (one view after step 1, the next
+    # once the steps have taken its 0.25 s, after step 4).
+    _, cached_at_step = views_cached_by_step(scene, monkeypatch, steps=6)
     assert [cached_at_step[step] for step in (1, 2, 3, 4)] == [1, 4, 6, 8]
 
 
@@ -687,22 +696,10 @@ def test_under_a_budget_the_views_owed_in_any_case_are_cached_at_the_memory_limi
     # caching its least (Q 3, near 2, far 2) first: 9 views as step 2 ends; after step 2 the
     # pool's last owed view (4, views_per_step): 11. A pool of one view for the whole loop
     # trained it to that view alone.
-    mesh, _, views = scene
     monkeypatch.setattr(loop_module, "resident_bytes", lambda: 2_000_000_000)
-    clock = ManualClock()
-    slow = slow_run(scene, monkeypatch, clock, view_seconds=0.25, step_seconds=0.0625)
-    uncached = {name: ViewSet(slow, v.cameras, eager=False) for name, v in views.items()}
-    validation = Validation(uncached, output_sizes(mesh, SCALE), clock=clock)
-    cached_at_step = {}
-
-    def on_event(event):
-        if event.phase == "step":
-            cached_at_step[event.step] = event.done
-
-    model = lanczos_model(mesh)
-    config = small_config(time_budget=20.0, steps=8, memory_limit=1_000_000_000)
-    budget = Budget(clock, 0.0, 20.0)
-    result = optimize(slow, model, config, validation, budget=budget, on_event=on_event)
+    result, cached_at_step = views_cached_by_step(
+        scene, monkeypatch, steps=8, memory_limit=1_000_000_000
+    )
     assert [cached_at_step[step] for step in range(1, 9)] == [1, 9, 11, 11, 11, 11, 11, 11]
     assert result.training_views == 4
     assert result.validation_views == {"Q": 3, "near": 2, "far": 2}
