@@ -405,6 +405,7 @@ def test_a_later_trial_takes_the_earlier_pools_taps_where_the_memory_limit_holds
     adds taps as large as the earlier pools'. Where the process cannot hold them under the
     method's memory limit, the earlier pools' taps go (found again where that layout wins)."""
     import geoscaler.methods.repacked as repacked
+    import geoscaler.optim.loop as loop_module
     from geoscaler.optim.loop import OptimizeConfig
 
     class Pool:
@@ -418,15 +419,15 @@ def test_a_later_trial_takes_the_earlier_pools_taps_where_the_memory_limit_holds
     config = OptimizeConfig(steps=10, memory_limit=1000)
     trials = repacked._Trials(config, RunContext(), 0.0, None, [])
     trials.pools = {"keep": Pool()}
-    monkeypatch.setattr(repacked, "resident_bytes", lambda: 699)  # 699 + 300 < 1000: room
+    monkeypatch.setattr(loop_module, "resident_bytes", lambda: 699)  # 699 + 300 < 1000: room
     trials._room_for_a_pool()
     assert not trials.pools["keep"].dropped and not released
-    monkeypatch.setattr(repacked, "resident_bytes", lambda: 700)  # 700 + 300: no room
+    monkeypatch.setattr(loop_module, "resident_bytes", lambda: 700)  # 700 + 300: no room
     trials._room_for_a_pool()
     assert trials.pools["keep"].dropped and released == [True]
     unknown = repacked._Trials(config, RunContext(), 0.0, None, [])
     unknown.pools = {"keep": Pool()}
-    monkeypatch.setattr(repacked, "resident_bytes", lambda: None)  # the system cannot say
+    monkeypatch.setattr(loop_module, "resident_bytes", lambda: None)  # the system cannot say
     unknown._room_for_a_pool()
     assert not unknown.pools["keep"].dropped
 

@@ -45,6 +45,7 @@ from geoscaler.optim.loop import (
     OptimizeConfig,
     Phase,
     nothing_visible_to_gain,
+    reaches_memory_limit,
     validate,
 )
 from geoscaler.optim.validation import (
@@ -54,7 +55,7 @@ from geoscaler.optim.validation import (
     sets_below,
     validation_view_sets,
 )
-from geoscaler.process import release_free_memory, resident_bytes
+from geoscaler.process import release_free_memory
 from geoscaler.render.cameras import Camera, sample_training_cameras
 from geoscaler.render.renderer import Renderer
 from geoscaler.render.views import ViewCache, training_views
@@ -714,10 +715,10 @@ class _Trials:
         renderers' memo, their G-buffers, so what a pool adds is its taps. Each trial then
         trains on as many views as the first; at the limit a later trial's pool stopped at
         the views every loop owes (bob at 8x and 60 s: 4 against the first trial's 14)."""
-        limit, resident = self.config.memory_limit, resident_bytes()
-        if limit is None or resident is None:
+        limit = self.config.memory_limit
+        if limit is None:
             return
-        if resident + sum(pool.nbytes for pool in self.pools.values()) < limit:
+        if not reaches_memory_limit(limit, sum(pool.nbytes for pool in self.pools.values())):
             return
         for pool in self.pools.values():
             pool.drop_taps()

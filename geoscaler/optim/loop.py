@@ -322,6 +322,13 @@ def nothing_visible_to_gain(validation: Validation) -> bool | None:
     return max(worst.values()) >= INVISIBLE_PSNR_FG if worst else None
 
 
+def reaches_memory_limit(limit: int | None, more: int = 0) -> bool:
+    """The process's resident size plus ``more`` bytes reaches ``limit`` (False without a
+    limit, or where the system cannot tell the resident size)."""
+    resident = None if limit is None else resident_bytes()
+    return resident is not None and resident + more >= limit
+
+
 class _Caching:
     """Caches the training pool and the validation views between steps.
 
@@ -401,13 +408,12 @@ class _Caching:
         :data:`CACHED_PER_STEP` views owed in any case (:meth:`_cache_owed`, even past the
         caching window, the view memory and the memory limit: a few views, where a pool of
         one view trains a loop to that view alone), then :data:`CACHED_PER_STEP` views
-        (under a budget, fewer where
-        caching would take more than :data:`CACHING_PER_STEPPING` of the steps' seconds so
-        far); past the caching window or the view memory, :meth:`close`; at the process's
-        memory limit, none this step (the validation sets freeze at what they have; the pool
-        grows again where a later step leaves room). Then, where the process holds its
-        memory limit, give its free memory back
-        (:func:`~geoscaler.process.release_free_memory`)."""
+        (under a budget, fewer where caching would take more than
+        :data:`CACHING_PER_STEPPING` of the steps' seconds so far); past the caching window
+        or the view memory, :meth:`close`; at the process's memory limit, none this step (the
+        validation sets freeze at what they have; the pool grows again where a later step
+        leaves room). Then, where the process holds its memory limit, give its free memory
+        back (:func:`~geoscaler.process.release_free_memory`)."""
         self.stepping += step_seconds
         for _ in range(CACHED_PER_STEP if self.budget.limited else 0):
             if not fits(self.view_cost.mean) or not self._cache_owed():
@@ -487,10 +493,8 @@ class _Caching:
 
     def _resident_over(self, more: int) -> bool:
         """The process's resident size plus ``more`` bytes reaches ``config.memory_limit``
-        (False without a limit, or where the system cannot tell)."""
-        limit = self.config.memory_limit
-        resident = None if limit is None else resident_bytes()
-        return resident is not None and resident + more >= limit
+        (:func:`reaches_memory_limit`)."""
+        return reaches_memory_limit(self.config.memory_limit, more)
 
     def view_bytes(self) -> int:
         """Bytes the training pool and the validation sets hold (:attr:`ViewSet.nbytes` and
