@@ -88,11 +88,13 @@ def test_a_new_layout_whose_start_is_below_a_filter_on_every_set_gets_no_trial(c
     import geoscaler.methods.repacked as repacked
 
     plain = repacked._new_layout
+    made = []
 
     def black_start(*args):
         """The new layout with its bake replaced by black: far below every filter."""
         layout = plain(*args)
         layout.starts = [None if s is None else torch.zeros_like(s) for s in layout.starts]
+        made.append(layout)
         return layout
 
     monkeypatch.setattr(repacked, "_new_layout", black_start)
@@ -106,6 +108,8 @@ def test_a_new_layout_whose_start_is_below_a_filter_on_every_set_gets_no_trial(c
     assert not race["keep"]["gated"] and race["keep"]["start_below"] is None
     assert method_details(result)["layout_used"] == "keep" and result.uvs is None
     assert method_details(result)["steps"] == 10  # the own layout went on with the steps left
+    (new,) = made  # no trial: the taps its start was validated with went at once
+    assert new.validation.missing_taps == new.validation.num_views > 0
 
 
 def test_a_new_layout_whose_start_is_a_little_below_a_filter_on_one_set_gets_no_trial(
@@ -226,6 +230,8 @@ def fake_race(
         # the trial before the planning caches views in what the planning leaves of the share
         expected = repacked.FIRST_TRIAL_CACHING if self.first else None
         assert handover.get("caching_share") == expected
+        # ... and leaves room for a later layout's pool (none after it, in its place)
+        assert handover.get("room_for_a_pool") == (True if self.first else None)
         if self.last:
             gc.collect()
             alive.extend(name for name, pool in pools.items() if pool() is not None)
@@ -252,6 +258,7 @@ def fake_race(
         seconds_needed=lambda validations, *args: validations * validation_seconds,
         view_cost=view_cost,
         tap_cost=tap_cost,
+        taps_seconds=lambda views, seconds=0.0: views * (tap_cost or view_cost or seconds),
         num_views=9,
         worst_baseline_views=lambda: worst or {},
     )
@@ -398,17 +405,19 @@ def test_the_first_trials_share_is_of_the_time_left_after_what_the_race_pays_onc
     assert unbudgeted._first_deadline(validation) is None
 
 
-def test_a_later_trial_takes_the_earlier_pools_taps_where_the_memory_limit_holds_no_more(
+def test_a_later_trial_takes_the_earlier_layouts_taps_where_the_memory_limit_holds_no_more(
     monkeypatch,
 ):
-    """A later trial trains on the first trial's cameras, their G-buffers shared: its pool
-    adds taps as large as the earlier pools'. Where the process cannot hold them under the
-    method's memory limit, the earlier pools' taps go (found again where that layout wins)."""
+    """A later trial trains on the first trial's cameras and validates on its views, their
+    G-buffers shared: its pool adds taps as large as the earlier pools'. Where the process
+    cannot hold them under the method's memory limit, the earlier pools' taps go, and where
+    that is not room enough, the earlier validations' taps too (each found again where its
+    layout goes on)."""
     import geoscaler.methods.repacked as repacked
     import geoscaler.optim.loop as loop_module
     from geoscaler.optim.loop import OptimizeConfig
 
-    class Pool:
+    class Taps:
         nbytes, dropped = 300, False
 
         def drop_taps(self):
@@ -417,19 +426,28 @@ def test_a_later_trial_takes_the_earlier_pools_taps_where_the_memory_limit_holds
     released = []
     monkeypatch.setattr(repacked, "release_free_memory", lambda: released.append(True))
     config = OptimizeConfig(steps=10, memory_limit=1000)
-    trials = repacked._Trials(config, RunContext(), 0.0, None, [])
-    trials.pools = {"keep": Pool()}
-    monkeypatch.setattr(loop_module, "resident_bytes", lambda: 699)  # 699 + 300 < 1000: room
-    trials._room_for_a_pool()
-    assert not trials.pools["keep"].dropped and not released
-    monkeypatch.setattr(loop_module, "resident_bytes", lambda: 700)  # 700 + 300: no room
-    trials._room_for_a_pool()
-    assert trials.pools["keep"].dropped and released == [True]
-    unknown = repacked._Trials(config, RunContext(), 0.0, None, [])
-    unknown.pools = {"keep": Pool()}
-    monkeypatch.setattr(loop_module, "resident_bytes", lambda: None)  # the system cannot say
-    unknown._room_for_a_pool()
-    assert not unknown.pools["keep"].dropped
+
+    def room(resident_besides_the_pool: int | None) -> tuple[bool, bool]:
+        """(pool dropped, validation dropped) where the process holds the earlier pool's 300
+        bytes of taps and ``resident_besides_the_pool`` more (None: the system cannot say)."""
+        trials = repacked._Trials(config, RunContext(), 0.0, None, [])
+        pool, validation = Taps(), Taps()
+        trials.pools, trials.validations = {"keep": pool}, {"keep": validation}
+
+        def resident():
+            if resident_besides_the_pool is None:
+                return None
+            return resident_besides_the_pool + (0 if pool.dropped else pool.nbytes)
+
+        monkeypatch.setattr(loop_module, "resident_bytes", resident)
+        released.clear()
+        trials._room_for_a_pool()
+        return pool.dropped, validation.dropped
+
+    assert room(399) == (False, False) and not released  # 699 + 300 < 1000: room
+    assert room(400) == (True, False) and released == [True]  # 700 + 300; then 400 + 300
+    assert room(700) == (True, True) and released == [True, True]  # 700 + 300 once it went
+    assert room(None) == (False, False)
 
 
 def test_a_later_phase_times_its_first_step_from_the_methods_start():

@@ -705,6 +705,55 @@ def test_under_a_budget_the_views_owed_in_any_case_are_cached_at_the_memory_limi
     assert result.validation_views == {"Q": 3, "near": 2, "far": 2}
 
 
+def test_a_race_s_first_trial_leaves_room_for_one_more_pool_as_it_caches_the_validation(
+    monkeypatch,
+):
+    # Once the pool stops growing, validation views are cached up to the memory limit: each
+    # takes 10 bytes here, from 500, against a limit of 1000. Leaving room for the taps of
+    # a later layout's pool as large as this one's (200 bytes), 30 of them instead of 50.
+    from geoscaler.optim.loop import OptimizeConfig, _Caching
+
+    class Pool:
+        nbytes = 0  # its views' own bytes, shared by every layout's pool
+
+        def __init__(self):
+            self.cameras = [None] * 1000
+
+        def __len__(self):
+            return 1000
+
+    class Train:
+        nbytes = 200  # the taps
+
+        def __init__(self):
+            self.views = Pool()
+
+    class Validation:
+        sets, frozen, num_views = {}, False, 0
+
+        def cache_next(self):
+            self.num_views += 1
+            return True
+
+        def freeze(self):
+            self.frozen = True
+
+    def validation_cached(room_for_a_pool: bool) -> int:
+        validation = Validation()
+        resident = lambda: 500 + 10 * validation.num_views  # noqa: E731
+        monkeypatch.setattr(loop_module, "resident_bytes", resident)
+        config = OptimizeConfig(memory_limit=1000, view_memory=None)
+        budget = Budget(ManualClock(), 0.0, None)
+        caching = _Caching(Train(), validation, config, budget, lambda *args, **kw: None)
+        caching.room_for_a_pool = room_for_a_pool
+        caching.close()
+        assert validation.frozen
+        return validation.num_views
+
+    assert validation_cached(False) == 50
+    assert validation_cached(True) == 30
+
+
 def test_a_finished_loop_leaves_its_training_pool_to_reference_counting(scene):
     # Nothing of a finished loop refers back to itself: the pool it trained on is freed as
     # its last holder lets go, not at the garbage collector's next pass (a race's losing

@@ -247,6 +247,21 @@ def test_a_validated_candidates_q_row_reuses_its_renders_and_equals_a_fresh_scor
         validation.score(other, None, ["Q"])
 
 
+def test_a_validation_prices_the_taps_it_must_find_again_once_they_are_dropped(small):
+    mesh, _ = small
+    validation = _validation(small)
+    validation.cache_all()
+    validation.freeze()
+    assert validation.missing_taps == 0 and validation.tap_cost > 0
+    held = validation.seconds_needed(1, caching=False)
+    validation.drop_taps()
+    assert validation.missing_taps == validation.num_views == 6 + 2 + 2
+    owed = validation.seconds_needed(1, caching=False) - held
+    assert owed == pytest.approx(10 * validation.tap_cost)
+    validation.psnr([texture_to_linear(lanczos(t, 4)) for t in reference_textures(mesh)], None)
+    assert validation.missing_taps == 0  # found again as each view was rendered
+
+
 def test_each_validation_measures_the_unit_costs_again(small):
     mesh, _ = small
     validation = _validation(small, clock=TickingClock())

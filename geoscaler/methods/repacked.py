@@ -121,30 +121,23 @@ class LayoutValidation(Validation):
         self.freeze()
         return self.base.baseline_scores()
 
-    def seconds_needed(
+    def work_seconds(
         self,
         validations: int,
         caching: bool,
         view_seconds: float = 0.0,
         least: Mapping[str, int] = MIN_FROZEN,
     ) -> float:
-        """As :meth:`Validation.seconds_needed`, with the base's unit costs until this layout
-        has measured its own (the same views and sizes), plus the taps of this layout still
-        to find in the frozen views (:func:`taps_seconds`: the views themselves are cached
-        already, by the base)."""
-        source = super() if self._render_seconds else self.base
-        seconds = source.seconds_needed(validations, caching, view_seconds, least)
-        if not self.frozen:
-            return seconds
-        missing = sum(max(self.counts[n] - len(c.taps), 0) for n, c in self.sets.items())
-        return seconds + taps_seconds(self.base, missing, view_seconds)
+        """As :meth:`Validation.work_seconds`, with the base's unit costs until this layout has
+        measured its own (the same views and sizes)."""
+        if self._render_seconds:
+            return super().work_seconds(validations, caching, view_seconds, least)
+        return self.base.work_seconds(validations, caching, view_seconds, least)
 
-
-def taps_seconds(validation: Validation, views: int, view_seconds: float = 0.0) -> float:
-    """Seconds a new UV layout takes to find its taps in ``views`` views whose G-buffers and
-    references are cached: ``validation``'s mean taps' seconds a view, or its whole view's
-    cost until it has timed one (``view_seconds`` before either)."""
-    return views * (validation.tap_cost or validation.view_cost or view_seconds)
+    def taps_seconds(self, views: int, view_seconds: float = 0.0) -> float:
+        """As :meth:`Validation.taps_seconds`, at the base's cost of a view's taps: the views
+        themselves are cached already, by the base."""
+        return self.base.taps_seconds(views, view_seconds)
 
 
 PLANNING_VIEWS_SHARE = 0.5
@@ -630,6 +623,7 @@ class _Trials:
         self.results: dict[str, MethodResult] = {}
         self.models: dict[str, Any] = {}
         self.pools: dict[str, ViewCache] = {}
+        self.validations: dict[str, Validation] = {}
         self.starts: dict[str, dict[str, float]] = {}
         self.gated: dict[str, TrialFacts] = {}
         self.steps = 0
@@ -688,6 +682,7 @@ class _Trials:
                 self.starts[name] = below = start_below(layout.validation, start)
                 if below:
                     self.gated[name] = _gated_facts(layout.validation, start, below)
+                    layout.validation.drop_taps()  # no trial: the memory is the others'
                     return
                 handover["start_scores"] = start
             self._room_for_a_pool()
@@ -696,6 +691,7 @@ class _Trials:
             deadline = min(deadline, self.end - _relayout_reserve(layout, self.context))
         if first and self.planning_follows:
             handover["caching_share"] = FIRST_TRIAL_CACHING
+            handover["room_for_a_pool"] = True
         phase = _Phase(self.config, self.context, self.started, self.steps, first, last=False)
         pool = training_views(layout.renderer, self.cameras, layout.validation.sizes, True)
         result = phase.fit(
@@ -704,35 +700,40 @@ class _Trials:
         if first and self.planning_follows and self._invisible(layout.validation, result):
             result.loop = replace(result.loop, stopped_by=NOTHING_TO_GAIN)
         self.results[name], self.models[name], self.pools[name] = result, model, pool
+        self.validations[name] = layout.validation
         self.steps += result.loop.steps
         if first:
             self.steps_each = result.loop.steps
 
     def _room_for_a_pool(self) -> None:
         """Where the process could not hold one more training pool as large as the earlier
-        trials' under the method's memory limit, forget their taps (found again where one of
-        those layouts goes on): the trials share the training cameras and, through the
-        renderers' memo, their G-buffers, so what a pool adds is its taps. Each trial then
-        trains on as many views as the first; at the limit a later trial's pool stopped at
-        the views every loop owes (bob at 8x and 60 s: 4 against the first trial's 14)."""
+        trials' under the method's memory limit, forget their taps, and where that leaves no
+        room either, the taps of their validations too (each found again where its layout
+        goes on, and priced by :meth:`Validation.seconds_needed` meanwhile). The trials share
+        the training cameras and validation views and, through the renderers' memo, their
+        G-buffers, so what a layout adds is its taps: each trial then holds one layout's
+        taps, as the first did, and trains on as many views. At the limit a later trial's
+        pool stopped at the views every loop owes (bob at 8x and 60 s: 4 against the first
+        trial's 14; ycb_banana: 4 against 20, its validation's taps beside the first's)."""
         limit = self.config.memory_limit
         if limit is None:
             return
-        if not reaches_memory_limit(limit, sum(pool.nbytes for pool in self.pools.values())):
-            return
-        for pool in self.pools.values():
-            pool.drop_taps()
-        release_free_memory()
+        pools = sum(pool.nbytes for pool in self.pools.values())
+        for caches in (self.pools.values(), self.validations.values()):
+            if caches and reaches_memory_limit(limit, pools):
+                for cache in caches:
+                    cache.drop_taps()
+                release_free_memory()
 
     def least_later(self, validation: Validation) -> float:
         """Seconds a later trial takes at least to be ranked (:func:`_ranked`), with the loop's
         :data:`~geoscaler.optim.loop.FINISH_MARGIN`: its taps in the first trial's
-        ``validation`` views and in one step's training views (:func:`taps_seconds`), and three
-        validations: its start's, one after a step, and the step (the forward and backward
-        passes of ``views_per_step`` views, about one validation's renders in the nine or more
-        views it has)."""
+        ``validation`` views and in one step's training views
+        (:meth:`Validation.taps_seconds`), and three validations: its start's, one after a
+        step, and the step (the forward and backward passes of ``views_per_step`` views, about
+        one validation's renders in the nine or more views it has)."""
         views = validation.num_views + self.config.views_per_step
-        taps = taps_seconds(validation, views)
+        taps = validation.taps_seconds(views)
         return FINISH_MARGIN * (validation.seconds_needed(3, False) + taps)
 
     def _invisible(self, validation: Validation, first: MethodResult) -> bool:

@@ -362,6 +362,7 @@ class _Caching:
         self.window = Budget(budget.clock, budget.start, share)
         self.stepping = 0.0  # seconds the loop's steps took
         self.between_steps = 0.0  # seconds spent caching after them
+        self.room_for_a_pool = False  # :attr:`LoopSetup.room_for_a_pool`
 
     @property
     def pool(self) -> ViewSet:
@@ -467,16 +468,21 @@ class _Caching:
         the loop's own budget and the view memory (all of them, without a budget or a limit),
         and validate on those from now on. A loop whose budget ends before the window (a
         race's first trial) caches none past its end: they made the validations the race
-        still owes too costly for its time."""
+        still owes too costly for its time. With :attr:`room_for_a_pool`, none where the
+        process could then not hold one more pool's taps beside them: a race's first trial
+        filled the memory limit with validation views, and a later layout's pool stopped at
+        8 views against its 20 (ycb_banana at 8x and 60 s)."""
         self.pool.cameras = self.pool.cameras[: len(self.pool)]
-        while self.window.left() > 0 and self.budget.left() > 0 and not self.memory_full():
+        room = self.train.nbytes if self.room_for_a_pool else 0  # its views are shared
+        while self.window.left() > 0 and self.budget.left() > 0 and not self.memory_full(room):
             if not self.validation.cache_next():
                 break
         self.validation.freeze()
 
-    def memory_full(self) -> bool:
+    def memory_full(self, room: int = 0) -> bool:
         """The cached views hold ``config.view_memory`` bytes or more, or one more view (of
-        their mean size) would take the process to ``config.memory_limit`` resident bytes.
+        their mean size) and ``room`` bytes would take the process to ``config.memory_limit``
+        resident bytes.
 
         Read right after a step, the resident size holds that step's passing buffers too
         (freed memory is kept), so a view is cached only where the next step still fits."""
@@ -484,7 +490,7 @@ class _Caching:
             return True
         views = self.view_bytes()
         cached = len(self.pool) + self.validation.num_views
-        return self._resident_over(views // max(cached, 1))
+        return self._resident_over(views // max(cached, 1) + room)
 
     def views_full(self) -> bool:
         """The cached views hold ``config.view_memory`` bytes or more."""
@@ -554,6 +560,9 @@ class LoopSetup:
             count).
         caching_share: the share of the budget within which views are cached
             (:data:`CACHING_SHARE`; less where other preparation shares that time).
+        room_for_a_pool: the validation views cached once the pool stops growing leave the
+            process room under its memory limit for the taps of one more pool as large (a
+            race's first trial: each later layout finds its own taps in the same views).
     """
 
     keeps_uvs: bool = True
@@ -563,6 +572,7 @@ class LoopSetup:
     start_scores: Scores | None = None
     phase: Phase = ALONE
     caching_share: float = CACHING_SHARE
+    room_for_a_pool: bool = False
 
 
 PLAIN = LoopSetup()
@@ -677,6 +687,7 @@ class TrainingLoop:
         share = setup.caching_share
         self._report = _Reporter(self.phase, self.state, config.steps, budget, self.emit)
         self.caching = _Caching(pool, validation, config, budget, self._report, share)
+        self.caching.room_for_a_pool = setup.room_for_a_pool
         self.start_state: Candidate | None = None
 
     def run(self) -> OptimizeResult:

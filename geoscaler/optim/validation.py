@@ -247,6 +247,19 @@ class Validation:
         return self.costs.tap_cost.mean
 
     @property
+    def missing_taps(self) -> int:
+        """Frozen views whose taps are not found (0 before the validation freezes)."""
+        if not self.frozen:
+            return 0
+        return sum(max(self.counts[n] - len(c.taps), 0) for n, c in self.sets.items())
+
+    def taps_seconds(self, views: int, view_seconds: float = 0.0) -> float:
+        """Seconds to find the taps of ``views`` views whose G-buffers and references are
+        cached: the mean taps' seconds a view, or a whole view's cost until a view's taps are
+        timed (``view_seconds`` before either)."""
+        return views * (self.tap_cost or self.view_cost or view_seconds)
+
+    @property
     def _view_cost(self) -> ViewCost:
         return self.costs.view_cost
 
@@ -279,7 +292,19 @@ class Validation:
         computation of Q's metrics: they reuse the validation's renders, see :meth:`score`),
         and (``caching``) the views :meth:`freeze` must still cache to have ``least`` views in
         each set, each taking ``view_seconds`` until one of these views is cached and timed
-        (the renders are not counted before)."""
+        (the renders are not counted before); and the taps of frozen views whose taps were
+        dropped (:meth:`drop_taps`), found again by the next validation (:meth:`taps_seconds`)."""
+        work = self.work_seconds(validations, caching, view_seconds, least)
+        return work + self.taps_seconds(self.missing_taps, view_seconds)
+
+    def work_seconds(
+        self,
+        validations: int,
+        caching: bool,
+        view_seconds: float = 0.0,
+        least: Mapping[str, int] = MIN_FROZEN,
+    ) -> float:
+        """:meth:`seconds_needed` without the taps still to find."""
         if self._baseline_scores is None:
             validations += len(self.baselines)
         to_cache = self.views.to_cache(least) if caching and not self.frozen else None
