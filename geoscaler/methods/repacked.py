@@ -49,7 +49,6 @@ from geoscaler.optim.loop import (
     validate,
 )
 from geoscaler.optim.validation import (
-    MIN_FROZEN,
     Scores,
     Validation,
     sets_below,
@@ -121,18 +120,11 @@ class LayoutValidation(Validation):
         self.freeze()
         return self.base.baseline_scores()
 
-    def work_seconds(
-        self,
-        validations: int,
-        caching: bool,
-        view_seconds: float = 0.0,
-        least: Mapping[str, int] = MIN_FROZEN,
-    ) -> float:
-        """As :meth:`Validation.work_seconds`, with the base's unit costs until this layout has
-        measured its own (the same views and sizes)."""
-        if self._render_seconds:
-            return super().work_seconds(validations, caching, view_seconds, least)
-        return self.base.work_seconds(validations, caching, view_seconds, least)
+    @property
+    def pricing(self) -> Validation:
+        """The base until this layout has measured its own unit costs (the same views and
+        sizes, the base's baselines)."""
+        return self if self._render_seconds else self.base
 
     def taps_seconds(self, views: int, view_seconds: float = 0.0) -> float:
         """As :meth:`Validation.taps_seconds`, at the base's cost of a view's taps: the views

@@ -293,29 +293,26 @@ class Validation:
         and (``caching``) the views :meth:`freeze` must still cache to have ``least`` views in
         each set, each taking ``view_seconds`` until one of these views is cached and timed
         (the renders are not counted before); and the taps of frozen views whose taps were
-        dropped (:meth:`drop_taps`), found again by the next validation (:meth:`taps_seconds`)."""
-        work = self.work_seconds(validations, caching, view_seconds, least)
-        return work + self.taps_seconds(self.missing_taps, view_seconds)
-
-    def work_seconds(
-        self,
-        validations: int,
-        caching: bool,
-        view_seconds: float = 0.0,
-        least: Mapping[str, int] = MIN_FROZEN,
-    ) -> float:
-        """:meth:`seconds_needed` without the taps still to find."""
-        if self._baseline_scores is None:
-            validations += len(self.baselines)
-        to_cache = self.views.to_cache(least) if caching and not self.frozen else None
-        return self.costs.seconds_needed(
-            self.num_views,
-            self.views.q_views,
+        dropped (:meth:`drop_taps`), found again by the next validation (:meth:`taps_seconds`).
+        Priced at the unit costs of :attr:`pricing`."""
+        source = self.pricing
+        if source._baseline_scores is None:
+            validations += len(source.baselines)
+        to_cache = source.views.to_cache(least) if caching and not source.frozen else None
+        work = source.costs.seconds_needed(
+            source.num_views,
+            source.views.q_views,
             validations,
-            scorings_after=self.scorings_after,
+            scorings_after=source.scorings_after,
             to_cache=to_cache,
             view_seconds=view_seconds,
         )
+        return work + self.taps_seconds(self.missing_taps, view_seconds)
+
+    @property
+    def pricing(self) -> Validation:
+        """The validation whose unit costs, views and baselines price this one's work: itself."""
+        return self
 
     # ------------------------------------------------------------------ scoring
 
