@@ -738,14 +738,14 @@ def test_a_race_s_first_trial_leaves_room_for_one_more_pool_as_it_caches_the_val
         def freeze(self):
             self.frozen = True
 
-    def validation_cached(room_for_a_pool: bool) -> int:
+    def validation_cached(room: bool) -> int:
         validation = Validation()
         resident = lambda: 500 + 10 * validation.num_views  # noqa: E731
         monkeypatch.setattr(loop_module, "resident_bytes", resident)
         config = OptimizeConfig(memory_limit=1000, view_memory=None)
         budget = Budget(ManualClock(), 0.0, None)
-        caching = _Caching(Train(), validation, config, budget, lambda *args, **kw: None)
-        caching.room_for_a_pool = room_for_a_pool
+        emit = lambda *args, **fields: None  # noqa: E731
+        caching = _Caching(Train(), validation, config, budget, emit, room_for_a_pool=room)
         caching.close()
         assert validation.frozen
         return validation.num_views

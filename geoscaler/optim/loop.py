@@ -352,9 +352,10 @@ class _Caching:
         budget: Budget,
         emit: Callable[..., None],
         share: float = CACHING_SHARE,
+        room_for_a_pool: bool = False,
     ):
         """``emit(kind, **fields)`` reports a progress event of the loop; views are cached
-        within ``share`` of the budget."""
+        within ``share`` of the budget (``room_for_a_pool``: :attr:`LoopSetup.room_for_a_pool`)."""
         self.train, self.validation, self.config = train, validation, config
         self.budget, self.emit = budget, emit
         self.view_cost = ViewCost()
@@ -362,7 +363,7 @@ class _Caching:
         self.window = Budget(budget.clock, budget.start, share)
         self.stepping = 0.0  # seconds the loop's steps took
         self.between_steps = 0.0  # seconds spent caching after them
-        self.room_for_a_pool = False  # :attr:`LoopSetup.room_for_a_pool`
+        self.room_for_a_pool = room_for_a_pool
 
     @property
     def pool(self) -> ViewSet:
@@ -686,8 +687,8 @@ class TrainingLoop:
         )
         share = setup.caching_share
         self._report = _Reporter(self.phase, self.state, config.steps, budget, self.emit)
-        self.caching = _Caching(pool, validation, config, budget, self._report, share)
-        self.caching.room_for_a_pool = setup.room_for_a_pool
+        room = setup.room_for_a_pool
+        self.caching = _Caching(pool, validation, config, budget, self._report, share, room)
         self.start_state: Candidate | None = None
 
     def run(self) -> OptimizeResult:

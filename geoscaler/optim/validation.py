@@ -292,9 +292,10 @@ class Validation:
         computation of Q's metrics: they reuse the validation's renders, see :meth:`score`),
         and (``caching``) the views :meth:`freeze` must still cache to have ``least`` views in
         each set, each taking ``view_seconds`` until one of these views is cached and timed
-        (the renders are not counted before); and the taps of frozen views whose taps were
-        dropped (:meth:`drop_taps`), found again by the next validation (:meth:`taps_seconds`).
-        Priced at the unit costs of :attr:`pricing`."""
+        (the renders are not counted before); and the taps the next validation finds in
+        frozen views that have none (:attr:`missing_taps`: views :meth:`freeze` cached, or
+        whose taps :meth:`drop_taps` forgot; :meth:`taps_seconds`). Priced at the unit costs
+        of :attr:`pricing`."""
         source = self.pricing
         if source._baseline_scores is None:
             validations += len(source.baselines)
