@@ -728,7 +728,7 @@ def test_a_race_s_first_trial_leaves_room_for_one_more_pool_as_it_caches_the_val
         def __init__(self):
             self.views = Pool()
 
-    class Validation:
+    class FewViews:  # a validation that caches one more view a call
         sets, frozen, num_views = {}, False, 0
 
         def cache_next(self):
@@ -739,7 +739,7 @@ def test_a_race_s_first_trial_leaves_room_for_one_more_pool_as_it_caches_the_val
             self.frozen = True
 
     def validation_cached(room: bool) -> int:
-        validation = Validation()
+        validation = FewViews()
         resident = lambda: 500 + 10 * validation.num_views  # noqa: E731
         monkeypatch.setattr(loop_module, "resident_bytes", resident)
         config = OptimizeConfig(memory_limit=1000, view_memory=None)
