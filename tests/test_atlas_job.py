@@ -481,19 +481,19 @@ def test_a_later_phase_times_its_first_step_from_the_methods_start():
     assert math.isnan(repacked._first_step([made(math.nan)]))
 
 
-def test_an_aligned_layout_sparser_than_the_own_one_is_not_weighed(monkeypatch):
+def test_a_layout_sparser_than_the_own_one_is_not_weighed(monkeypatch):
     from types import SimpleNamespace
 
     import geoscaler.methods.repacked as repacked
     from geoscaler.clock import WALL_CLOCK
     from geoscaler.methods.registry import LayoutFacts
 
-    def planned(aligned_k: float) -> tuple[list[bool], LayoutFacts]:
-        """The layouts offered where the aligned plan has density ``aligned_k`` (the unaligned
-        one 1.4), and the facts."""
+    def planned(aligned_k: float, unaligned_k: float = 1.4) -> tuple[list[bool], LayoutFacts]:
+        """The layouts offered where the aligned plan has density ``aligned_k`` and the
+        unaligned one ``unaligned_k``, and the facts."""
 
         def plan(mesh, rule, renderer, config, budget, align, views):
-            k = aligned_k if align else 1.4
+            k = aligned_k if align else unaligned_k
             return SimpleNamespace(moved=True, aligned=align, facts=SimpleNamespace(k=k))
 
         monkeypatch.setattr(repacked, "plan_layout", plan)
@@ -506,9 +506,36 @@ def test_an_aligned_layout_sparser_than_the_own_one_is_not_weighed(monkeypatch):
     # starts below Lanczos in the own layout (10 dB on a 4096 scan at 4x); only the unaligned
     # layout is offered, and its facts are the planned ones.
     offered, facts = planned(0.5)
-    assert offered == [False] and facts.planned.k == 1.4
+    assert offered == [False] and facts.planned.k == 1.4 and facts.skipped is None
     offered, facts = planned(1.2)  # denser than the own layout: both weighed
     assert offered == [True, False] and facts.planned.k == 1.2
+    offered, facts = planned(1.2, 0.99)  # the unaligned one a hair sparser: only the aligned
+    assert offered == [True] and facts.skipped is None
+    offered, facts = planned(0.5, 0.99)  # both sparser: none, and the report says why
+    assert offered == [] and facts.skipped == repacked.SPARSER
+    assert facts.planned.k == 0.99  # the unaligned plan's, as where only it is weighed
+
+
+def test_an_unaligned_plan_sparser_than_the_own_layout_is_not_weighed(monkeypatch):
+    from types import SimpleNamespace
+
+    import geoscaler.methods.repacked as repacked
+    from geoscaler.clock import WALL_CLOCK
+    from geoscaler.methods.registry import LayoutFacts
+
+    plans = []  # where the far views do not minify, the first plan is already unaligned
+
+    def plan(mesh, rule, renderer, config, budget, align, views):
+        plans.append(align)
+        return SimpleNamespace(moved=True, aligned=False, facts=SimpleNamespace(k=0.8))
+
+    monkeypatch.setattr(repacked, "plan_layout", plan)
+    facts = LayoutFacts(uv="auto")
+    offered = repacked._timely_layouts(
+        None, None, None, None, SimpleNamespace(clock=WALL_CLOCK), None, facts
+    )
+    assert offered == [] and plans == [True]  # planned once: no second, unaligned plan
+    assert facts.skipped == repacked.SPARSER and facts.planned.k == 0.8
 
 
 def minifying(uv: str, steps: int):

@@ -71,6 +71,9 @@ before the better one goes on (:func:`raced`)."""
 NEW_LAYOUTS = ("repack", "unaligned")
 """The names of the new layouts a race may weigh: the planned one, and where that aligned its
 charts to the original's mip blocks, the unaligned one (:func:`_timely_layouts`)."""
+SPARSER = "every new layout planned is sparser than the mesh's own where the views look (k below 1)"
+"""Why no new layout is weighed where each one planned has ``k`` below 1
+(:func:`offered_layouts`)."""
 PREPARING_SHARE = 0.4
 """Under a time budget, the share of the time left when planning starts (``--uv auto``: after
 the own layout's trial) by which the new layouts are planned and baked, the rest left to the
@@ -504,11 +507,13 @@ def offered_layouts(
 ) -> list[Atlas]:
     """The new layouts a race may weigh (:data:`NEW_LAYOUTS`): the planned one, and where that
     aligned its charts to the original's mip blocks (:func:`~geoscaler.uv.atlas.alignment_for`)
-    the unaligned one too, time allowing; an aligned one sparser than the mesh's own layout
-    where the views look (``k`` below 1: its scales are powers of two of the original's,
-    rounded down) is not weighed, as its bake starts far below Lanczos in the own layout; none
-    where the layout does not move a chart or there is no time for it (the reason in
-    ``facts.skipped``; under a deadline a plan whose views would take more than
+    the unaligned one too, time allowing. A layout sparser than the mesh's own where the views
+    look (``k`` below 1; an aligned one's scales are powers of two of the original's, rounded
+    down) is not weighed: its bake starts below the filters in the own layout, which the race's
+    gate then finds, after its bake and its start's validation
+    (docs/decisions/keep-first-race.md, "The starts on the development set"). None where the
+    layout does not move a chart, every plan is sparser, or there is no time for it (the reason
+    in ``facts.skipped``; under a deadline a plan whose views would take more than
     :data:`PLANNING_VIEWS_SHARE` of its time is not made). The first one's facts go in
     ``facts.planned``.
 
@@ -519,6 +524,7 @@ def offered_layouts(
     """
     atlases: list[Atlas] = []
     views = PlanningViews(renderer, config)
+    sparser = False
     for align in (True, False):
         deadline = _plan_deadline(planned_by, first_by, baking, len(atlases))
         if deadline is not None and clock.now() >= deadline:
@@ -531,14 +537,15 @@ def offered_layouts(
             facts.planned = atlas.facts
         if not atlas.moved:
             return atlases
-        if atlas.aligned and atlas.facts.k < 1.0:
-            continue  # sparser than the own layout where the views look: not weighed
-        if deadline is None or clock.now() <= deadline:
+        sparser = atlas.facts.k < 1.0
+        if not sparser and (deadline is None or clock.now() <= deadline):
             atlases.append(atlas)
         if not atlas.aligned:
             break
     if not atlases:
-        facts.skipped = "the time budget left no time to plan and bake a new layout"
+        facts.skipped = (
+            SPARSER if sparser else "the time budget left no time to plan and bake a new layout"
+        )
     return atlases
 
 
