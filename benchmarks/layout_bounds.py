@@ -146,11 +146,14 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def planning_arguments(description: str) -> tuple[argparse.Namespace, list]:
+def planning_arguments(
+    description: str, parser: argparse.ArgumentParser | None = None
+) -> tuple[argparse.Namespace, list]:
     """The arguments of a benchmark that plans layouts of meshes (PATH ..., ``--scale``,
-    ``--device``, ``--json``) and the meshes they name (:func:`find_meshes`; default: the
-    development set, none where it is absent, said on stderr)."""
-    parser = argparse.ArgumentParser(description=description)
+    ``--device``, ``--json``; ``parser``: one holding the benchmark's own arguments already)
+    and the meshes they name (:func:`find_meshes`; default: the development set, none where
+    it is absent, said on stderr)."""
+    parser = parser or argparse.ArgumentParser(description=description)
     parser.add_argument("paths", nargs="*", type=Path)
     parser.add_argument("--scale", type=int, nargs="+", default=[4, 8])
     parser.add_argument("--device", default="cpu")

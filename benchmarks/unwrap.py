@@ -30,10 +30,10 @@ import math
 import statistics
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import xatlas
+from layout_bounds import planning_arguments  # beside this script
 
 from geoscaler.io import load_mesh
 from geoscaler.mesh import TexturedMesh
@@ -45,13 +45,11 @@ from geoscaler.optim.loop import OptimizeConfig
 from geoscaler.pipeline.downsampling import product_evaluation
 from geoscaler.protocol import PROTOCOL_EVALUATION
 from geoscaler.render.renderer import Renderer
-from geoscaler.report.bench import find_meshes
 from geoscaler.resize.sizes import SizeRule
 from geoscaler.uv.atlas import Atlas, chart_boxes, uv_areas
 from geoscaler.uv.packing import corner_areas
 from geoscaler.uv.uvmaps import chart_labels
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 DB_PER_HALVING = 5.0
 AWAY = 8.0
 """UV units the re-unwrapped charts are moved along u, clear of the charts kept."""
@@ -198,23 +196,13 @@ def chart_options(pairs: list[str]) -> xatlas.ChartOptions:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("paths", nargs="*", type=Path)
-    parser.add_argument("--scale", type=int, nargs="+", default=[4, 8])
+    description = __doc__.splitlines()[0]
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--fill", type=float, default=1.0)
     parser.add_argument("--chart-option", action="append", default=[])
-    parser.add_argument("--device", default="cpu")
-    parser.add_argument("--json", type=Path)
-    args = parser.parse_args()
-    if not args.paths and not DATA.is_dir():
-        print(f"no development data at {DATA}: nothing to measure", file=sys.stderr)
-        return 0
+    args, meshes = planning_arguments(description, parser)
     options = chart_options(args.chart_option)
-    rows = [
-        row
-        for entry in find_meshes(args.paths or [DATA])
-        for row in mesh_rows(entry, args, options)
-    ]
+    rows = [row for entry in meshes for row in mesh_rows(entry, args, options)]
     print(table(rows))
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
