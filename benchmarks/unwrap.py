@@ -139,14 +139,12 @@ def mesh_rows(entry, args: argparse.Namespace, options: xatlas.ChartOptions) -> 
     views = PlanningViews(renderer, config)
     footprint = face_footprint(views, len(mesh.faces))
     other, chosen, made, seconds = unwrapped(mesh, args.fill, options)
-    other_renderer = Renderer(other, args.device, evaluation)
-    other_views = PlanningViews(other_renderer, config)
-    other_views._tri_ids = views.tri_ids  # the same faces in the same order
+    other_renderer = Renderer(other, args.device, evaluation)  # the views see the same faces
     rows = []
     for scale in args.scale:
         rule = SizeRule(scale=scale)
         started = time.perf_counter()
-        k_unwrap = best_k(mesh, other, rule, other_renderer, config, other_views, footprint)
+        k_unwrap = best_k(mesh, other, rule, other_renderer, config, views, footprint)
         row = {
             "mesh": entry.name,
             "scale": scale,
