@@ -46,7 +46,7 @@ from geoscaler.pipeline.downsampling import product_evaluation
 from geoscaler.protocol import PROTOCOL_EVALUATION
 from geoscaler.render.renderer import Renderer
 from geoscaler.resize.sizes import SizeRule
-from geoscaler.uv.atlas import Atlas, chart_boxes, uv_areas
+from geoscaler.uv.atlas import Atlas, chart_boxes, chart_footprint, uv_areas
 from geoscaler.uv.packing import corner_areas
 from geoscaler.uv.uvmaps import chart_labels
 
@@ -105,14 +105,6 @@ def face_k(original: TexturedMesh, atlas: Atlas, footprint: np.ndarray) -> float
     return float(math.exp((weights * gain).sum() / weights.sum())) if weights.sum() else 1.0
 
 
-def face_footprint(views: PlanningViews, faces: int) -> np.ndarray:
-    """``(F,)`` screen samples of each face over the planning views."""
-    samples = np.zeros(faces)
-    for ids in views.tri_ids:
-        samples += np.bincount(ids.long().reshape(-1).numpy(), minlength=faces)[:faces]
-    return samples
-
-
 def best_k(
     original: TexturedMesh,
     mesh: TexturedMesh,
@@ -137,7 +129,7 @@ def mesh_rows(entry, args: argparse.Namespace, options: xatlas.ChartOptions) -> 
     renderer = Renderer(mesh, args.device, evaluation)
     config = loop_config(DEFAULT_CONFIG, MethodOptions(device=args.device), RunContext())
     views = PlanningViews(renderer, config)
-    footprint = face_footprint(views, len(mesh.faces))
+    footprint = chart_footprint(np.arange(len(mesh.faces)), views.tri_ids)  # (F,) per face
     other, chosen, made, seconds = unwrapped(mesh, args.fill, options)
     other_renderer = Renderer(other, args.device, evaluation)  # the views see the same faces
     rows = []
