@@ -3,7 +3,7 @@
 For every development mesh (each folder of the shared data whose ``meta.json`` names an
 ``"entry"``) this runs two commands, as a user runs them, and reads their JSON:
 
-    geoscaler compare MESH --scale 4 8 --methods bicubic,lanczos,direct --uv keep
+    geoscaler compare MESH --scale 4 8 --methods bicubic,lanczos,direct --uv keep --protocol 1
         --distance 2.4 1.5 4.0 --time-budget 60 --device DEVICE --json
     geoscaler compare MESH --scale 4 8 --methods bicubic,lanczos,direct --uv auto  (the same)
 
@@ -63,6 +63,11 @@ JOBS = {
 commands run both filters: they are the floor the learned method's validation must clear, as
 in `geoscaler downsample`."""
 
+PROTOCOL = 1
+"""Every row is protocol 1, the unlit base colour (PBR meshes included: `compare` scores them
+lit, protocol 2, unless told): the paper's measure, comparable across the whole set. The lit
+figures of the PBR meshes are in docs/protocol.md."""
+
 QUICK_MESHES = ("spot", "ph_wooden_table_02")
 QUICK_VIEWS = (0, 10, 20, 30, 40, 50)
 QUICK_IMAGE_SIZE = 128
@@ -100,7 +105,7 @@ def compare_command(mesh: Path, uv: str, args: argparse.Namespace) -> list[str]:
     else:
         head = [sys.executable, "-m", "geoscaler.cli"]
     return [*head, "compare", str(mesh), "--scale", *map(str, args.scale),
-            "--methods", JOBS[uv][0], "--uv", uv,
+            "--methods", JOBS[uv][0], "--uv", uv, "--protocol", str(PROTOCOL),
             "--distance", *(f"{d:g}" for d in SETS.values()),
             "--time-budget", f"{args.budget:g}", "--device", args.device, "--json"]  # fmt: skip
 
@@ -119,6 +124,9 @@ def run_job(name: str, mesh: Path, uv: str, args: argparse.Namespace, logs: Path
         job["error"] = done.stderr.strip()[-400:]
         return {"job": job, "rows": [], "device": None, "filters": {}}
     document = json.loads(done.stdout)
+    if document.get("protocol") != PROTOCOL:
+        job["error"] = f"scored under protocol {document.get('protocol')}, not {PROTOCOL}"
+        return {"job": job, "rows": [], "device": None, "filters": {}}
     distances = {d: s for s, d in SETS.items()}
     rows, filters = [], {}
     for r in document["results"]:

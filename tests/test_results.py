@@ -9,6 +9,7 @@ import math
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 from conftest import DATA_DIR
@@ -114,6 +115,23 @@ def test_the_readme_summary_between_its_markers():
     filled = results.fill_markers(readme, "new")
     assert filled == "intro\n<!-- results:start -->\nnew\n<!-- results:end -->\nafter\n"
     assert results.fill_markers(filled, "new") == filled
+
+
+def test_every_command_asks_for_protocol_1_and_a_lit_document_gives_no_rows(
+    tmp_path, monkeypatch
+):
+    # compare scores a PBR mesh lit (protocol 2) unless told: the table would mix protocols
+    results = load_results()
+    args = SimpleNamespace(quick=False, scale=[4, 8], device="cpu", budget=60.0)
+    command = results.compare_command(Path("mesh.glb"), "auto", args)
+    assert command[command.index("--protocol") + 1] == "1"
+
+    lit = {"protocol": 2, "mesh": "mesh.glb", "device": "cpu", "results": [{"method": "x"}]}
+    done = subprocess.CompletedProcess([], 0, stdout=json.dumps(lit), stderr="")
+    monkeypatch.setattr(results.subprocess, "run", lambda *a, **k: done)
+    result = results.run_job("mesh", Path("mesh.glb"), "keep", args, tmp_path)
+    assert result["rows"] == []
+    assert result["job"]["error"] == "scored under protocol 2, not 1"
 
 
 def test_render_writes_the_page_and_the_readme_summary(tmp_path):
