@@ -130,6 +130,7 @@ def mesh_rows(entry, args: argparse.Namespace, options: xatlas.ChartOptions) -> 
     config = loop_config(DEFAULT_CONFIG, MethodOptions(device=args.device), RunContext())
     views = PlanningViews(renderer, config)
     footprint = chart_footprint(np.arange(len(mesh.faces)), views.tri_ids)  # (F,) per face
+    charts = int(chart_labels(mesh).max()) + 1
     other, chosen, made, seconds = unwrapped(mesh, args.fill, options)
     other_renderer = Renderer(other, args.device, evaluation)  # the views see the same faces
     rows = []
@@ -140,7 +141,7 @@ def mesh_rows(entry, args: argparse.Namespace, options: xatlas.ChartOptions) -> 
         row = {
             "mesh": entry.name,
             "scale": scale,
-            "charts": int(chart_labels(mesh).max()) + 1,
+            "charts": charts,
             "unwrapped": chosen,
             "became": made,
             "unwrap_seconds": round(seconds, 2),
@@ -191,6 +192,8 @@ def main() -> int:
     parser.add_argument("--fill", type=float, default=1.0)
     parser.add_argument("--chart-option", action="append", default=[])
     args, meshes = planning_arguments(description, parser)
+    if not meshes:
+        return 0
     options = chart_options(args.chart_option)
     rows = [row for entry in meshes for row in mesh_rows(entry, args, options)]
     print(table(rows))
