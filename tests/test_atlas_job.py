@@ -19,7 +19,7 @@ from geoscaler.methods import MethodOptions, run_method
 from geoscaler.methods.registry import RunContext, get_method, register, unregister
 from geoscaler.pipeline.job import compare_mesh
 from geoscaler.protocol import Evaluation
-from geoscaler.report.documents import method_details
+from geoscaler.report.documents import comparison_json, dumps, method_details
 from geoscaler.uv.uvmaps import chart_labels
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -813,12 +813,21 @@ def test_the_job_scores_repack_beside_direct_on_the_same_views(cube):
             options=MethodOptions(device="cpu", steps=4, settings={"optimize": LOOP}),
             renderer=Renderer(cube, "cpu", QUICK),
         )
+        document = json.loads(dumps(comparison_json("cube.glb", comparison)))
     finally:
         unregister("direct-repack-test")
     rows = {row["method"]: row for row in comparison.rows}
     assert rows["direct-repack-test"]["views"] == rows["direct"]["views"] == 3
     # a sparse atlas at 4x: twice the texel density is worth more than 4 steps of direct
     assert rows["direct-repack-test"]["gain_db"] > rows["direct"]["gain_db"]
+    # the compare document says how each learned run went and in which layout it shipped
+    runs = document["runs"]
+    assert [(run["method"], run["scale"], run["steps"]) for run in runs] == [
+        ("direct", 4, 4),
+        ("direct-repack-test", 4, 4),
+    ]
+    assert [run.get("layout_used") for run in runs] == [None, "repack"]
+    assert runs[1]["layout"]["k"] > 1.0
 
 
 def test_downsample_writes_the_new_uvs_and_rebakes_every_map(tmp_path, cube):

@@ -100,6 +100,7 @@ def test_json_is_strict_with_protocol_key(comparison):
     reference = by_method(document["results"])["reference"]
     assert reference["psnr_fg"] is None and reference["ssim_fg"] == 1.0  # inf -> null
     assert isinstance(by_method(document["results"])["box"]["psnr_fg"], float)
+    assert document["runs"] == []  # filters only: no learned run to describe
 
 
 def test_table_lists_each_row(comparison):

@@ -46,16 +46,24 @@ def json_safe(value: Any) -> Any:
 
 
 def comparison_json(mesh_path: str | Path, comparison: Comparison) -> dict[str, Any]:
-    """The ``--json`` document: ``{"protocol", "mesh", "device", "results"}``, strict JSON.
+    """The ``--json`` document: ``{"protocol", "mesh", "device", "results", "runs"}``, strict
+    JSON. ``runs`` holds, per learned method and scale, what its loop did and which UV layout
+    it shipped and why (:func:`method_details`, as a report's ``details``).
 
     Infinite PSNRs and gains (renders identical to the reference) are written as null.
     """
+    runs = [
+        {"method": method, "scale": scale, **method_details(result)}
+        for (method, scale), result in comparison.outputs.items()
+        if result.loop is not None or result.shipping is not None  # a learned method's
+    ]
     return json_safe(
         {
             "protocol": comparison.protocol,
             "mesh": str(mesh_path),
             "device": comparison.device,
             "results": comparison.rows,
+            "runs": runs,
         }
     )
 
