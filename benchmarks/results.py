@@ -128,6 +128,8 @@ def run_job(name: str, mesh: Path, uv: str, args: argparse.Namespace, logs: Path
         job["error"] = f"scored under protocol {document.get('protocol')}, not {PROTOCOL}"
         return {"job": job, "rows": [], "device": None, "filters": {}}
     distances = {d: s for s, d in SETS.items()}
+    layouts = {run["scale"]: run.get("layout_used", "keep") for run in document.get("runs", [])
+               if run["method"] == "direct"}  # fmt: skip
     rows, filters = [], {}
     for r in document["results"]:
         if r["method"] != "direct":
@@ -139,6 +141,7 @@ def run_job(name: str, mesh: Path, uv: str, args: argparse.Namespace, logs: Path
             "scale": r["scale"], "set": distances[r["distance"]], "distance": r["distance"],
             "views": r["views"], "psnr_fg": r["psnr_fg"], "gain_db": r["gain_db"],
             "seconds": round(r["seconds"], 2), "shipped": r["shipped"],
+            **({"layout": layouts[r["scale"]]} if r["method"] == "direct" and layouts else {}),
         })  # fmt: skip
     return {"job": job, "rows": rows, "device": document.get("device"), "filters": filters}
 
@@ -260,14 +263,17 @@ def write_tables(
 
 def _cell(row: dict | None) -> str:
     """A method's cell: gain over bicubic (its PSNR-fg), and what shipped where the job's
-    validation shipped a filter in its place."""
+    validation shipped a filter in its place, or where it shipped in new UVs (a ``layout``
+    other than the mesh's own, which rows from documents without ``runs`` do not say)."""
     if row is None:
         return "-"
     if row["method"] == "bicubic":
         return f"{row['psnr_fg']:.2f}"
     cell = f"{row['gain_db']:+.2f} ({row['psnr_fg']:.2f})"
     learned = row["method"].split()[0]
-    return cell if row["shipped"] in (row["method"], learned) else f"{cell}, {row['shipped']}"
+    if row["shipped"] not in (row["method"], learned):
+        return f"{cell}, {row['shipped']}"
+    return cell if row.get("layout", "keep") == "keep" else f"{cell}, new UVs"
 
 
 def _summary_cells(rows: list[dict | None]) -> tuple[str, str]:
@@ -346,7 +352,8 @@ with the original base colour against renders with the candidate, PSNR-fg in dB 
 Q (distance 2.4), near (1.5) and far (4.0). A method's cell is its gain over bicubic on the same
 mesh, scale and set, with its PSNR-fg in brackets; `direct` keeps the mesh's UVs and
 `direct --uv auto` races the mesh's layout against a repacked one ([method](method.md)). Where
-the job's validation shipped a filter instead of the learned texture, the cell names it. The
+the job's validation shipped a filter instead of the learned texture, the cell names it; where
+the learned texture shipped in a new UV layout, the cell says "new UVs". The
 mean row averages the meshes; the worst row names the mesh with the lowest value of the column."""
 
 
