@@ -55,7 +55,7 @@ def comparison_json(mesh_path: str | Path, comparison: Comparison) -> dict[str, 
     runs = [
         {"method": method, "scale": scale, **method_details(result)}
         for (method, scale), result in comparison.outputs.items()
-        if result.loop is not None or result.shipping is not None  # a learned method's
+        if result.loop is not None or result.shipping is not None  # learned: filters have neither
     ]
     return json_safe(
         {
