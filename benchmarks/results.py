@@ -406,9 +406,21 @@ def render_summary(documents: list[dict], page: str = "docs/results.md") -> str:
         f"`{header['commit']}`{' (dirty tree)' if header['dirty'] else ''}, {header['date'][:10]}, "
         f"{header['machine']['cores']} cores, {header['machine']['device']}, {alone} (load "
         f"{header['alone']['load_start'][0]:g} at the start). Every mesh, with PSNR-fg: "
-        f"[{page}]({page}).",
+        f"[{page}]({page}).{_new_uvs(documents)}",
     ]
     return "\n".join(lines)
+
+
+def _new_uvs(documents: list[dict]) -> str:
+    """The summary's sentence on where a learned method shipped new UVs, per scale (empty
+    where the rows do not say: tables from documents without ``runs``)."""
+    parts = []
+    for document in documents:
+        rows = [r for r in document["rows"] if r["set"] == "Q" and "layout" in r]
+        if rows:
+            moved = [r["mesh"] for r in rows if r["layout"] != "keep"]
+            parts.append(f"{document['header']['scale']}x {', '.join(moved) or 'none'}")
+    return f" New UVs shipped on: {'; '.join(parts)}." if parts else ""
 
 
 MARKERS = ("<!-- results:start -->", "<!-- results:end -->")
