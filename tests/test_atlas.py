@@ -3,6 +3,7 @@ the guards, and the bake into the new layout."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -26,6 +27,7 @@ from geoscaler.uv import atlas as atlas_module
 from geoscaler.uv import packing
 from geoscaler.uv.atlas import (
     ALIGNMENT,
+    ALLOCATION_EXPONENT,
     CUT_GAIN,
     LEAST_GAIN,
     alignment_for,
@@ -98,12 +100,26 @@ def test_footprint_counts_the_samples_of_each_chart():
     np.testing.assert_array_equal(chart_footprint(charts, ids), [3.0, 1.0, 2.0])
 
 
-def test_planned_scales_give_texels_in_proportion_to_screen_samples():
+def test_planned_scales_minimise_the_error_the_samples_see_for_the_same_texels():
     area = np.array([1.0, 1.0, 4.0])
     scales = planned_scales(np.array([1.0, 4.0, 4.0]), area)
-    # density ~ sqrt(samples / area): 1, 2, 1, then normalised to the original total area
-    np.testing.assert_allclose(scales / scales[0], [1.0, 2.0, 1.0])
+    # density ~ (samples / area) ^ (1 / (2 + g)), g = log2 10^0.5: the squared error's fall
+    # per doubling of the density at 5 dB per halving; then the original total area
+    assert ALLOCATION_EXPONENT == pytest.approx(1 / (2 + math.log2(10**0.5)))
+    np.testing.assert_allclose(scales / scales[0], [1.0, 4.0**ALLOCATION_EXPONENT, 1.0])
     np.testing.assert_allclose((scales**2 * area).sum(), area.sum())
+
+
+def test_detail_weighs_a_chart_as_its_samples_do():
+    area = np.ones(3)
+    scales = planned_scales(np.array([2.0, 2.0, 8.0]), area, np.array([1.0, 4.0, 1.0]))
+    assert scales[1] == pytest.approx(scales[2])
+    assert scales[1] / scales[0] == pytest.approx(4.0**ALLOCATION_EXPONENT)
+
+
+def test_a_chart_of_flat_colour_keeps_a_quarter_of_the_median_density():
+    scales = planned_scales(np.array([4.0, 4.0, 4.0]), np.ones(3), np.array([1.0, 1.0, 0.0]))
+    assert scales[2] == pytest.approx(0.25 * scales[0])
 
 
 def test_hidden_charts_keep_a_quarter_of_the_median_density():
@@ -145,7 +161,8 @@ def test_each_chart_moves_by_a_similarity_at_its_planned_scale():
     mesh = cube_mesh()
     atlas = repack(mesh, [(SIZE, SIZE)], footprint_ids(mesh, [40, 10, 10, 10, 10, 10]), 256)
     np.testing.assert_allclose(atlas.scales, atlas.planned, rtol=1e-9)
-    assert atlas.planned[0] == pytest.approx(2 * atlas.planned[1])  # 4x the samples, 2x side
+    # 4x the samples: 4^ALLOCATION_EXPONENT the side
+    assert atlas.planned[0] == pytest.approx(4.0**ALLOCATION_EXPONENT * atlas.planned[1])
     for matrix in atlas.linear:
         signs = matrix / np.abs(matrix).max()
         assert sorted(np.abs(signs).ravel().round(12).tolist()) == [0, 0, 1, 1]

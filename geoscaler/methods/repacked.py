@@ -61,6 +61,7 @@ from geoscaler.render.views import ViewCache, training_views
 from geoscaler.resize.sizes import COLOR, SizeRule
 from geoscaler.uv.atlas import Atlas, repack
 from geoscaler.uv.bake import BAKE_SECONDS_PER_SAMPLE, ChartMaps, bake
+from geoscaler.uv.detail import LostDetail, lost_detail
 from geoscaler.uv.uvmodes import check_uv_mode
 
 MAX_OVERSAMPLE = 4
@@ -154,6 +155,7 @@ class PlanningViews:
     def __init__(self, renderer: Renderer, config: Any):
         self.renderer, self.config = renderer, config
         self._tri_ids: list[torch.Tensor] = []
+        self._lost: dict[tuple, LostDetail] = {}
 
     def render_by(self, deadline: float | None = None, clock: Clock = WALL_CLOCK) -> bool:
         """Render the views not yet rendered; whether all are. Under a ``deadline`` (an instant
@@ -180,6 +182,16 @@ class PlanningViews:
         self.render_by()
         return self._tri_ids
 
+    def lost_detail(self, sizes: list) -> LostDetail:
+        """What each face's texels lose at the output ``sizes``
+        (:func:`~geoscaler.uv.detail.lost_detail`), measured once for the plans that share
+        these views."""
+        key = tuple(sizes)
+        if key not in self._lost:
+            renderer = self.renderer
+            self._lost[key] = lost_detail(renderer.mesh, renderer.reference_maps(), sizes)
+        return self._lost[key]
+
 
 def plan_layout(
     mesh: TexturedMesh,
@@ -192,7 +204,8 @@ def plan_layout(
 ) -> Atlas:
     """The new layout for ``rule``'s sizes within ``budget`` (:func:`~geoscaler.uv.atlas.repack`;
     None: no limit), its chart scales from the faces every training camera sees
-    (``views``; None: rendered here); ``align``: False never aligns charts."""
+    (``views``; None: rendered here) and the detail the original's texels lose at those sizes
+    (:func:`~geoscaler.uv.detail.lost_detail`); ``align``: False never aligns charts."""
     views = views or PlanningViews(renderer, config)
     sizes = output_sizes_for(mesh, rule, renderer)
     references = renderer.reference_maps()
@@ -200,7 +213,8 @@ def plan_layout(
         None if s is None or r is None else r.shape[0] / s[0]
         for s, r in zip(sizes, references, strict=True)
     ]
-    return repack(mesh, sizes, views.tri_ids, renderer.resolution, detail, budget, align)
+    lost = views.lost_detail(sizes)
+    return repack(mesh, sizes, views.tri_ids, renderer.resolution, detail, budget, align, lost)
 
 
 def baked_maps(

@@ -39,6 +39,7 @@ from geoscaler.io.slots import slot_info
 from geoscaler.mesh import TexturedMesh
 from geoscaler.protocol import FAR_DISTANCE
 from geoscaler.render.cameras import sample_extent
+from geoscaler.uv.detail import LostDetail
 from geoscaler.uv.packing import (
     SCALE_TOLERANCE,
     Charts,
@@ -63,7 +64,16 @@ from geoscaler.uv.uvmaps import (
 
 HIDDEN_SHARE = 0.25
 """Smallest planned scale of a chart, relative to the median chart's: charts no training view
-shows (inside, underneath) keep a quarter of the median density rather than none."""
+shows (inside, underneath) or of flat colour keep a quarter of the median density rather than
+none."""
+DB_PER_HALVING = 5.0
+"""The error's rise, in dB, where the texel density halves: bicubic's on the development set."""
+ALLOCATION_EXPONENT = 1.0 / (2.0 + math.log2(10.0 ** (DB_PER_HALVING / 10.0)))
+"""Exponent of the planned scales (:func:`planned_scales`), 0.27: where a chart's squared
+error falls as ``density ^ -g`` (``g = log2 10^(DB_PER_HALVING / 10)``, 1.66) and its texels
+cost ``area * density^2``, the density that minimises ``sum(samples * detail * density^-g)``
+for the same texels is ``(samples * detail / area) ^ (1 / (2 + g))`` (docs/decisions/
+chart-allocation.md)."""
 PACKER_MARGIN = 1
 """Texels of padding asked of xatlas beyond the plan: its own padding is measured on its
 conservative raster of the charts it stretched, and can leave charts one texel closer than
@@ -309,15 +319,21 @@ uv_areas = signed_areas
 """``(F,)`` signed UV area of each face (:func:`geoscaler.uv.packing.signed_areas`)."""
 
 
-def planned_scales(footprint: np.ndarray, chart_area: np.ndarray) -> np.ndarray:
-    """``(C,)`` relative linear scale of each chart: ``sqrt(footprint / UV area)``, so that
-    every chart gets texels in proportion to its screen samples; at least
-    :data:`HIDDEN_SHARE` of the median (charts no view shows, degenerate charts). Normalised
-    so the scaled charts have the original total UV area."""
+def planned_scales(
+    footprint: np.ndarray, chart_area: np.ndarray, detail: np.ndarray | None = None
+) -> np.ndarray:
+    """``(C,)`` relative linear scale of each chart: ``(footprint * detail / UV area) ^``
+    :data:`ALLOCATION_EXPONENT`, the scales that minimise the error the views see, summed
+    over their samples, for the same total texels (``detail``: ``(C,)`` what each chart's
+    texels lose, :meth:`~geoscaler.uv.detail.LostDetail.per_chart`; None: the same for every
+    chart); at least :data:`HIDDEN_SHARE` of the median (charts no view shows, charts of flat
+    colour, degenerate charts). Normalised so the scaled charts have the original total UV
+    area."""
     live = chart_area > 0
+    weight = footprint if detail is None else footprint * detail
     scales = np.zeros(len(chart_area))
-    scales[live] = np.sqrt(footprint[live] / chart_area[live])
-    seen = scales[live & (footprint > 0)]
+    scales[live] = (weight[live] / chart_area[live]) ** ALLOCATION_EXPONENT
+    seen = scales[live & (weight > 0)]
     median = float(np.median(seen)) if len(seen) else 1.0
     scales = np.maximum(np.where(live, scales, median), HIDDEN_SHARE * median)
     total = float((scales**2 * chart_area).sum())
@@ -390,9 +406,11 @@ def repack(
     detail: Sequence[float | None] | None = None,
     budget: Budget | None = None,
     align: bool = True,
+    lost: LostDetail | None = None,
 ) -> Atlas:
     """The new layout of ``mesh`` for textures of ``sizes`` (per material), charts scaled by
-    what some views (the training views, never the validation's) show of them.
+    what some views (the training views, never the validation's) show of them and by the
+    detail their texels lose at those sizes (:func:`planned_scales`).
 
     The charts are packed whole first (:func:`plan_charts`); where one would span more than
     :data:`CUT_SIDE` of its atlas at that packing's relative scales and the density that
@@ -415,6 +433,8 @@ def repack(
         budget: the time the plan must be made in (None: no limit): the packing's search
             stops at its end (:func:`~geoscaler.uv.packing.pack`).
         align: False: charts are never aligned (the other layout a race weighs).
+        lost: per face the detail its texels lose (:func:`~geoscaler.uv.detail.lost_detail`);
+            None: the same everywhere (charts scaled by the views alone).
 
     Returns:
         The :class:`Atlas`, each packed group's guards checked (:func:`group_problems`): both
@@ -426,7 +446,7 @@ def repack(
     budget = budget or unlimited()
     started = budget.now()
     plan = partial(plan_charts, mesh, sizes, tri_ids=tri_ids, samples_per_side=samples_per_side,
-                   detail=detail, budget=budget)  # fmt: skip
+                   detail=detail, budget=budget, lost=lost)  # fmt: skip
     whole = plan(charts, terms=PlanTerms(align, checked=False))
     longest = cut_lengths(mesh, whole, charts)
     charts_cut = int(np.isfinite(longest).sum())
@@ -495,10 +515,12 @@ def plan_charts(
     detail: Sequence[float | None] | None,
     budget: Budget | None = None,
     terms: PlanTerms = PlanTerms(),
+    lost: LostDetail | None = None,
 ) -> Atlas:
     """The layout of ``charts`` (``(F,)`` labels, each chart moved whole) as :func:`repack`
-    plans it on ``terms``, within ``budget`` (:func:`~geoscaler.uv.packing.pack`); a group
-    that does not fit them keeps its layout, with the reason."""
+    plans it on ``terms``, within ``budget`` (:func:`~geoscaler.uv.packing.pack`), each
+    chart's scale weighed by the detail it loses (``lost``; None: not weighed); a group that
+    does not fit them keeps its layout, with the reason."""
     groups, kept = layout_groups(mesh, sizes, charts)
     count = int(charts.max()) + 1 if len(charts) else 0
     chart_area = np.bincount(charts, np.abs(uv_areas(mesh.uvs, mesh.faces)), minlength=count)
@@ -515,6 +537,7 @@ def plan_charts(
         {},
         chart_footprint(charts, tri_ids),
     )
+    chart_detail = None if lost is None else lost.per_chart(charts, count)
     for materials in groups:
         try:
             _lay_out(
@@ -527,6 +550,7 @@ def plan_charts(
                 detail,
                 budget,
                 terms,
+                chart_detail,
             )
         except PackingError as error:  # AtlasError included: that group keeps its layout
             kept.update({m: str(error) for m in materials})
@@ -545,16 +569,19 @@ def _lay_out(
     detail: Sequence[float | None] | None,
     budget: Budget | None,
     terms: PlanTerms = PlanTerms(),
+    chart_detail: np.ndarray | None = None,
 ) -> None:
     """Pack the charts of ``materials`` into ``atlas`` (in place) within ``budget`` on
-    ``terms`` (:class:`PlanTerms`); or leave ``atlas`` as it was and raise
+    ``terms`` (:class:`PlanTerms`), each chart's scale weighed by ``(C,)`` ``chart_detail``
+    (:func:`planned_scales`; None: not weighed); or leave ``atlas`` as it was and raise
     :class:`~geoscaler.uv.packing.PackingError` when they do not fit, break a guard (where
     checked) or found no packing in time."""
     faces, group, ids, shift = group_charts(mesh, materials, charts)
     size = atlas.sizes[materials[0]][0]
     padding = padding_for(mesh, mesh.faces[faces], (size, size), samples_per_side)
     rotate = not has_normal_map(mesh, materials)
-    scales = planned_scales(atlas.footprint[ids], chart_area[ids])
+    lost = None if chart_detail is None else chart_detail[ids]
+    scales = planned_scales(atlas.footprint[ids], chart_area[ids], lost)
     cap = None if detail is None else detail[materials[0]]
     aligned = terms.align and cap is not None
     blocks = alignment_for(mesh, mesh.faces[faces], size, samples_per_side) if aligned else 1
