@@ -36,25 +36,35 @@ from geoscaler.mesh import TexturedMesh
 from geoscaler.methods import MethodOptions, RunContext
 from geoscaler.methods.direct import DEFAULT_CONFIG
 from geoscaler.methods.learned import loop_config
+from geoscaler.methods.registry import output_sizes_for
 from geoscaler.methods.repacked import plan_layout
 from geoscaler.render.renderer import Renderer
 from geoscaler.report.bench import find_meshes
 from geoscaler.resize.sizes import SizeRule
-from geoscaler.uv.atlas import Atlas, chart_boxes, planned_scales, uv_areas, weighted_gain
+from geoscaler.uv.atlas import (
+    DB_PER_HALVING,
+    Atlas,
+    chart_boxes,
+    planned_scales,
+    uv_areas,
+    weighted_gain,
+)
+from geoscaler.uv.detail import LostDetail, lost_detail
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-DB_PER_HALVING = 5.0
 
 
-def group_bounds(mesh: TexturedMesh, atlas: Atlas, group: int) -> dict:
-    """One packed group's ``k`` and bounds, with the footprint weight they average over."""
+def group_bounds(mesh: TexturedMesh, atlas: Atlas, group: int, lost: LostDetail) -> dict:
+    """One packed group's ``k`` and bounds, with the footprint weight they average over
+    (relative scales as the plan's, weighed by ``lost`` detail)."""
     count = len(atlas.planned)
     charts = np.where(atlas.chart_of_face >= 0, atlas.chart_of_face, count)  # kept: one more
     area = np.bincount(charts, np.abs(uv_areas(mesh.uvs, mesh.faces)), minlength=count + 1)
     faces = np.isin(mesh.face_material, atlas.groups[group]) & (atlas.chart_of_face >= 0)
     ids = np.unique(charts[faces])
     weights = atlas.footprint[ids]
-    relative = planned_scales(weights, area[ids])  # total UV area as the original's
+    detail = lost.per_chart(charts, count + 1)[ids]
+    relative = planned_scales(weights, area[ids], detail)  # total UV area as the original's
     padding = atlas.paddings[group]
     size = atlas.sizes[atlas.groups[group][0]][0]
     side = chart_boxes(mesh, charts, count + 1)[1][ids].max(axis=1) * relative
@@ -82,8 +92,10 @@ def mesh_rows(entry, scales: list[int], device: str) -> list[dict]:
     config = loop_config(DEFAULT_CONFIG, MethodOptions(device=device), RunContext())
     rows = []
     for scale in scales:
-        atlas = plan_layout(mesh, SizeRule(scale=scale), renderer, config)
-        groups = [group_bounds(mesh, atlas, g) for g in range(len(atlas.groups))]
+        rule = SizeRule(scale=scale)
+        atlas = plan_layout(mesh, rule, renderer, config)
+        lost = lost_detail(mesh, renderer.reference_maps(), output_sizes_for(mesh, rule, renderer))
+        groups = [group_bounds(mesh, atlas, g, lost) for g in range(len(atlas.groups))]
         if not groups:
             rows.append({"mesh": entry.name, "scale": scale, "kept": atlas.kept})
             continue

@@ -46,11 +46,10 @@ from geoscaler.pipeline.downsampling import product_evaluation
 from geoscaler.protocol import PROTOCOL_EVALUATION
 from geoscaler.render.renderer import Renderer
 from geoscaler.resize.sizes import SizeRule
-from geoscaler.uv.atlas import Atlas, chart_boxes, chart_footprint, uv_areas
+from geoscaler.uv.atlas import DB_PER_HALVING, Atlas, chart_boxes, chart_footprint, uv_areas
 from geoscaler.uv.packing import corner_areas
 from geoscaler.uv.uvmaps import chart_labels
 
-DB_PER_HALVING = 5.0
 AWAY = 8.0
 """UV units the re-unwrapped charts are moved along u, clear of the charts kept."""
 

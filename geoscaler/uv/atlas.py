@@ -3,12 +3,12 @@
 With its own UVs a scan's texture spends most of its texels on nothing (UV coverage of 8 to
 50 %) and the rest evenly, whatever the views show of each chart. :func:`repack` finds the
 charts of the mesh's UV layout (:func:`geoscaler.uv.uvmaps.chart_labels`), scales each by the
-screen footprint the training cameras give it per unit of its UV area (the texels a view asks
-of it), and packs the scaled charts into one ``R x R`` atlas with ``xatlas``, as large as one
-atlas still holds them all, with padding enough for the mip levels the far views read. A chart
-longer than half the atlas bounds how dense any packing of whole charts can be: such charts
-are cut along face edges into pieces, packed as charts of their own, where that measures
-denser (:data:`CUT_GAIN`).
+screen footprint the training cameras give it per unit of its UV area and by the detail its
+texels lose at the output size (:func:`planned_scales`), and packs the scaled charts into one
+``R x R`` atlas with ``xatlas``, as large as one atlas still holds them all, with padding
+enough for the mip levels the far views read. A chart longer than half the atlas bounds how
+dense any packing of whole charts can be: such charts are cut along face edges into pieces,
+packed as charts of their own, where that measures denser (:data:`CUT_GAIN`).
 
 Every chart is moved by a similarity only: a uniform scale and a translation, plus a rotation
 by a multiple of 90 degrees (or a transpose, a mirror) where the material has no normal map.
