@@ -41,6 +41,7 @@ from geoscaler.uv.atlas import (
     repack,
 )
 from geoscaler.uv.bake import ChartMaps, bake, decode, decoding, encode
+from geoscaler.uv.detail import LostDetail
 from geoscaler.uv.packing import (
     Charts,
     PackingError,
@@ -125,6 +126,14 @@ def test_a_chart_of_flat_colour_keeps_a_quarter_of_the_median_density():
 def test_hidden_charts_keep_a_quarter_of_the_median_density():
     scales = planned_scales(np.array([4.0, 4.0, 0.0]), np.ones(3))
     assert scales[2] == pytest.approx(0.25 * scales[0])
+
+
+def test_a_chart_that_loses_more_detail_gets_more_texels_for_the_same_samples():
+    mesh = cube_mesh()
+    lost = LostDetail(energy=np.repeat([16.0, 1, 1, 1, 1, 1], 2), texels=np.ones(12))
+    atlas = repack(mesh, [(SIZE, SIZE)], footprint_ids(mesh, [10] * 6), 256, lost=lost)
+    assert atlas.planned[0] == pytest.approx(16.0**ALLOCATION_EXPONENT * atlas.planned[1])
+    np.testing.assert_allclose(atlas.planned[2:], atlas.planned[1])
 
 
 def test_repack_raises_the_density_of_a_sparse_atlas():

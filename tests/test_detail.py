@@ -91,6 +91,15 @@ def test_nothing_measured_weighs_every_chart_the_same():
     np.testing.assert_array_equal(lost.per_chart(np.array([0, 1, 1]), 2), [1.0, 1.0])
 
 
+def test_a_texture_that_loses_nothing_weighs_every_chart_the_same():
+    mesh = two_quads()
+    texture = mesh.materials[0].base_color_texture
+    # at its own size nothing is lost: the charts are then weighed by their samples alone
+    lost = lost_detail(mesh, [texture], [(32, 32)])
+    assert lost.texels.sum() > 0 and lost.energy.sum() == 0
+    np.testing.assert_array_equal(lost.per_chart(np.array([0, 0, 1, 1]), 2), [1.0, 1.0])
+
+
 @pytest.mark.parametrize("size", [(8, 8), (16, 16)])
 def test_texels_counted_lie_inside_the_charts(size):
     mesh = two_quads()

@@ -15,10 +15,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from PIL import Image
+from PIL.Image import Resampling
 
 from geoscaler.mesh import TexturedMesh
-from geoscaler.resize.filters import resize_float
+from geoscaler.resize.filters import resize_channels
 from geoscaler.uv.packing import chart_texels
 
 
@@ -38,13 +38,14 @@ class LostDetail:
 
     def per_chart(self, charts: np.ndarray, count: int) -> np.ndarray:
         """``(count,)`` mean lost detail per interior texel of each chart of ``(F,)`` labels
-        ``charts``; a chart without interior texels gets the median of the charts with some,
-        and every chart 1.0 where none has any (nothing measured: no chart weighs more)."""
+        ``charts``; a chart without interior texels gets the median of the charts with some.
+        Every chart 1.0 where none has interior texels or none loses anything (nothing
+        measured, or a texture that keeps all its detail: no chart weighs more)."""
         texels = np.bincount(charts, self.texels, count)
         measured = texels > 0
-        if not measured.any():
-            return np.ones(count)
         mean = np.bincount(charts, self.energy, count) / np.maximum(texels, 1.0)
+        if not (mean[measured] > 0).any():
+            return np.ones(count)
         return np.where(measured, mean, float(np.median(mean[measured])))
 
 
@@ -73,15 +74,19 @@ def lost_detail(
 
 def block_variance(reference: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """``(h, w)`` float64 variance, summed over the colour channels, of ``reference``'s
-    ``(H, W, C)`` uint8 sRGB texels one octave finer than ``size = (h, w)`` (at most its
-    own) within each output texel: the box filter's mean of squares less its squared
-    mean."""
-    colour = reference[..., :3].astype(np.float32) / 255.0
-    finer = (min(reference.shape[0], 2 * size[0]), min(reference.shape[1], 2 * size[1]))
-    fine = resize_float(colour, finer, Image.Resampling.BOX)
-    mean = resize_float(fine, size, Image.Resampling.BOX).astype(np.float64)
-    squares = resize_float(fine * fine, size, Image.Resampling.BOX).astype(np.float64)
-    return np.maximum(squares - mean * mean, 0.0).sum(axis=-1)
+    ``(H, W, C)`` uint8 sRGB texels one octave finer than ``size = (h, w)`` (``reference``
+    box-resized to ``(2h, 2w)``) within each output texel: the mean of squares of each 2 x 2
+    block less its squared mean. One channel at a time in float32, so that a large original
+    is never held in float at full size."""
+    h, w = size
+    colour = np.ascontiguousarray(reference[..., :3])
+    fine = resize_channels(colour, (2 * h, 2 * w), Resampling.BOX)
+    variance = np.zeros((h, w))
+    for channel in range(fine.shape[2]):
+        blocks = fine[..., channel].reshape(h, 2, w, 2).astype(np.float32) / 255.0
+        mean = blocks.mean(axis=(1, 3))
+        variance += np.maximum((blocks * blocks).mean(axis=(1, 3)) - mean * mean, 0.0)
+    return variance
 
 
 def interior_texels(corner_uvs: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
