@@ -18,7 +18,7 @@ import numpy as np
 from PIL.Image import Resampling
 
 from geoscaler.mesh import TexturedMesh
-from geoscaler.resize.filters import resize_channels
+from geoscaler.resize.filters import resize_float
 from geoscaler.uv.packing import chart_texels
 
 
@@ -74,18 +74,18 @@ def lost_detail(
 
 def block_variance(reference: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """``(h, w)`` float64 variance, summed over the colour channels, of ``reference``'s
-    ``(H, W, C)`` uint8 sRGB texels one octave finer than ``size = (h, w)`` (``reference``
-    box-resized to ``(2h, 2w)``) within each output texel: the mean of squares of each 2 x 2
-    block less its squared mean. One channel at a time in float32, so that a large original
-    is never held in float at full size."""
-    h, w = size
-    colour = np.ascontiguousarray(reference[..., :3])
-    fine = resize_channels(colour, (2 * h, 2 * w), Resampling.BOX)
-    variance = np.zeros((h, w))
-    for channel in range(fine.shape[2]):
-        blocks = fine[..., channel].reshape(h, 2, w, 2).astype(np.float32) / 255.0
-        mean = blocks.mean(axis=(1, 3))
-        variance += np.maximum((blocks * blocks).mean(axis=(1, 3)) - mean * mean, 0.0)
+    ``(H, W, C)`` uint8 sRGB texels one octave finer than ``size = (h, w)`` (at most its
+    own) within each output texel: the box filter's mean of squares less its squared mean.
+    One channel at a time, so that at most one plane of a large original is held in float."""
+    finer = (min(reference.shape[0], 2 * size[0]), min(reference.shape[1], 2 * size[1]))
+    variance = np.zeros(size)
+    for channel in range(min(reference.shape[2], 3)):
+        plane = reference[..., channel : channel + 1].astype(np.float32) / 255.0
+        fine = resize_float(plane, finer, Resampling.BOX)
+        del plane
+        mean = resize_float(fine, size, Resampling.BOX)[..., 0].astype(np.float64)
+        squares = resize_float(fine * fine, size, Resampling.BOX)[..., 0].astype(np.float64)
+        variance += np.maximum(squares - mean * mean, 0.0)
     return variance
 
 
