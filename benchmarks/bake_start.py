@@ -5,8 +5,9 @@ A plan that gives some charts fewer texels than their own layout starves the vie
 at them: the mean over a set hides that, its worst views show it. Per mesh, scale and planned
 layout (aligned where the far views minify, then the unaligned one, as the job offers them)
 this prints ``k`` and, per set, the mean gain of the bake over Lanczos (dB, PSNR-fg) and its
-10th percentile over the views. No training: a few seconds a mesh and scale. Run it from two
-trees (``PYTHONPATH=<tree>``) to compare two planning rules on the same views.
+10th percentile over the views. No training: a few seconds a mesh and scale. To compare two
+planning rules on the same views, copy it into another tree's ``benchmarks/`` and run it there
+too, that tree first on the path (``PYTHONPATH=.`` from its root).
 
 Usage:
     python benchmarks/bake_start.py [PATH ...] [--scale 4 8] [--views 30] [--device cpu]
@@ -23,7 +24,7 @@ import statistics
 import sys
 
 import numpy as np
-from layout_bounds import planning_arguments
+from layout_bounds import planning_arguments  # beside this script, in older trees too
 
 from geoscaler.io import load_mesh
 from geoscaler.methods import MethodOptions, RunContext
@@ -120,7 +121,7 @@ def main() -> int:
     if not meshes:
         return 0
     rows = [r for entry in meshes for r in mesh_rows(entry, args.scale, args.views, args.device)]
-    print(table(rows))
+    print(table(rows))  # not layout_bounds.emit: the script runs in older trees, without it
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
     return 0

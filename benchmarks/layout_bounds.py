@@ -177,15 +177,21 @@ def planning_arguments(
     return args, find_meshes(args.paths or [DATA])
 
 
+def emit(rows: list[dict], text: str, path: Path | None) -> int:
+    """Print a benchmark's table ``text`` and write its ``rows`` to ``path`` as JSON (None:
+    not written); the exit status, 0."""
+    print(text)
+    if path:
+        path.write_text(json.dumps(rows, indent=1))
+    return 0
+
+
 def main() -> int:
     args, meshes = planning_arguments(__doc__.splitlines()[0])
     if not meshes:
         return 0
     rows = [row for entry in meshes for row in mesh_rows(entry, args.scale, args.device)]
-    print(table(rows))
-    if args.json:
-        args.json.write_text(json.dumps(rows, indent=1))
-    return 0
+    return emit(rows, table(rows), args.json)
 
 
 if __name__ == "__main__":

@@ -25,7 +25,6 @@ PATH: mesh files or folders (default: ../shared/data; a missing folder skips cle
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import statistics
 import sys
@@ -33,7 +32,7 @@ import time
 
 import numpy as np
 import xatlas
-from layout_bounds import planning_arguments  # beside this script
+from layout_bounds import emit, planning_arguments  # beside this script
 
 from geoscaler.io import load_mesh
 from geoscaler.mesh import TexturedMesh
@@ -195,10 +194,7 @@ def main() -> int:
         return 0
     options = chart_options(args.chart_option)
     rows = [row for entry in meshes for row in mesh_rows(entry, args, options)]
-    print(table(rows))
-    if args.json:
-        args.json.write_text(json.dumps(rows, indent=1))
-    return 0
+    return emit(rows, table(rows), args.json)
 
 
 if __name__ == "__main__":

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from mesh_support import mesh_of
 
-from geoscaler.mesh import Material, TexturedMesh, compute_vertex_normals
+from geoscaler.mesh import Material, TexturedMesh
 from geoscaler.uv.detail import LostDetail, block_variance, interior_texels, lost_detail
 
 CHECKER, FLAT = 0, 1
@@ -26,18 +27,10 @@ def two_quads() -> TexturedMesh:
     rows, cols = np.mgrid[16:32, 0:16]
     texture[16:32, 0:16] = (((rows // 2 + cols // 2) % 2) * 255)[..., None]  # u, v < 0.5
     texture[1:15, 17:31] = 128  # u, v in [0.53, 0.97]
-    positions = np.array(positions, np.float32)
-    faces = np.array(faces, np.int64)
-    vertex_to_point = np.arange(len(positions))
-    return TexturedMesh(
-        positions=positions,
-        faces=faces,
-        uvs=np.array(uvs, np.float32),
-        normals=compute_vertex_normals(positions, faces, vertex_to_point),
-        vertex_to_point=vertex_to_point,
-        face_material=np.zeros(len(faces), np.int64),
-        materials=[Material("quads", texture)],
-    )
+    positions, faces = np.array(positions, np.float32), np.array(faces, np.int64)
+    material = Material("quads", texture)
+    uvs = np.array(uvs, np.float32)
+    return mesh_of(positions, faces, uvs, np.zeros(4, np.int64), [material], np.arange(8))
 
 
 def test_block_variance_is_what_a_box_filter_discards_of_one_octave_finer():
