@@ -41,6 +41,13 @@ def test_block_variance_is_what_a_box_filter_discards_of_one_octave_finer():
     np.testing.assert_allclose(block_variance(np.full((4, 4, 3), 90, np.uint8), (2, 2)), 0.0)
 
 
+@pytest.mark.parametrize("channels", [2, 4])
+def test_alpha_is_no_detail(channels):
+    image = np.full((4, 4, channels), 200, np.uint8)
+    image[..., -1] = (np.indices((4, 4)).sum(axis=0) % 2 * 255).astype(np.uint8)
+    np.testing.assert_allclose(block_variance(image, (2, 2)), 0.0, atol=1e-6)
+
+
 def test_detail_more_than_one_octave_finer_is_not_counted():
     checker = (np.indices((8, 8)).sum(axis=0) % 2 * 255).astype(np.uint8)
     image = np.repeat(checker[..., None], 3, axis=2)

@@ -73,13 +73,15 @@ def lost_detail(
 
 
 def block_variance(reference: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """``(h, w)`` float64 variance, summed over the colour channels, of ``reference``'s
-    ``(H, W, C)`` uint8 sRGB texels one octave finer than ``size = (h, w)`` (at most its
-    own) within each output texel: the box filter's mean of squares less its squared mean.
-    One channel at a time, so that at most one plane of a large original is held in float."""
+    """``(h, w)`` float64 variance, summed over the colour channels (alpha left out), of
+    ``reference``'s ``(H, W, C)`` uint8 sRGB texels one octave finer than ``size = (h, w)``
+    (at most its own) within each output texel: the box filter's mean of squares less its
+    squared mean. One channel at a time, so that at most one plane of a large original is
+    held in float."""
     finer = (min(reference.shape[0], 2 * size[0]), min(reference.shape[1], 2 * size[1]))
     variance = np.zeros(size)
-    for channel in range(min(reference.shape[2], 3)):
+    colours = 1 if reference.shape[2] <= 2 else 3  # grey (+ alpha) or RGB (+ alpha)
+    for channel in range(colours):
         plane = reference[..., channel : channel + 1].astype(np.float32) / 255.0
         fine = resize_float(plane, finer, Resampling.BOX)
         del plane
