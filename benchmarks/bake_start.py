@@ -6,8 +6,9 @@ at them: the mean over a set hides that, its worst views show it. Per mesh, scal
 layout (aligned where the far views minify, then the unaligned one, as the job offers them)
 this prints ``k`` and, per set, the mean gain of the bake over Lanczos (dB, PSNR-fg) and its
 10th percentile over the views. No training: a few seconds a mesh and scale. To compare two
-planning rules on the same views, copy it into another tree's ``benchmarks/`` and run it there
-too, that tree first on the path (``PYTHONPATH=.`` from its root).
+planning rules on the same views, copy it (with ``entry.py``) into another tree's
+``benchmarks/`` and run it there too, that tree first on the path (``PYTHONPATH=.`` from its
+root).
 
 Usage:
     python benchmarks/bake_start.py [PATH ...] [--scale 4 8] [--views 30] [--device cpu]
@@ -24,6 +25,7 @@ import statistics
 import sys
 
 import numpy as np
+from entry import exit_status  # beside this script
 from layout_bounds import planning_arguments  # beside this script, in older trees too
 
 from geoscaler.io import load_mesh
@@ -128,4 +130,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(exit_status(main))

@@ -43,6 +43,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from entry import exit_status  # beside this script
 
 from geoscaler.io import load_mesh
 from geoscaler.mesh import TexturedMesh
@@ -323,4 +324,4 @@ def auto_over_keep(rows: list[dict], distance: float) -> list[str]:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(exit_status(main))

@@ -21,6 +21,8 @@ import sys
 import time
 from pathlib import Path
 
+from entry import exit_status  # beside this script
+
 from geoscaler.io import load_mesh
 from geoscaler.methods import run_method
 from geoscaler.methods.direct import DEFAULT_CONFIG, lanczos_texel_model
@@ -93,4 +95,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(exit_status(main))

@@ -30,6 +30,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from entry import exit_status  # beside this script
 
 from geoscaler.io import load_mesh
 from geoscaler.mesh import TexturedMesh
@@ -195,4 +196,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(exit_status(main))

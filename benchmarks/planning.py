@@ -23,6 +23,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from entry import exit_status  # beside this script
 from layout_bounds import planning_arguments  # beside this script
 
 from geoscaler.io import load_mesh
@@ -132,4 +133,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(exit_status(main))

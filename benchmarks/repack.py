@@ -29,6 +29,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
+from entry import exit_status  # beside this script
 
 from geoscaler.io import load_mesh
 from geoscaler.methods import LayoutFacts, MethodOptions, MethodResult, RunContext
@@ -252,4 +253,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(exit_status(main))

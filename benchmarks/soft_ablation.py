@@ -31,10 +31,13 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+import sys
 import time
 from collections import defaultdict
 from dataclasses import replace
 from pathlib import Path
+
+from entry import exit_status  # beside this script
 
 from geoscaler.color import linear_to_texture, texture_to_linear
 from geoscaler.io import load_mesh
@@ -245,4 +248,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(exit_status(main))

@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 import torch
+from entry import exit_status  # beside this script
 
 from geoscaler.color import linear_to_texture
 from geoscaler.io import load_mesh
@@ -124,4 +125,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(exit_status(main))

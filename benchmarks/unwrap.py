@@ -32,6 +32,7 @@ import time
 
 import numpy as np
 import xatlas
+from entry import exit_status  # beside this script
 from layout_bounds import emit, planning_arguments  # beside this script
 
 from geoscaler.io import load_mesh
@@ -198,4 +199,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(exit_status(main))

@@ -17,8 +17,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
+
+from entry import exit_status  # beside this script
 
 from geoscaler.io import load_mesh
 from geoscaler.methods.registry import output_sizes_for
@@ -77,4 +80,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(exit_status(main))
