@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from bake_start import view_scores  # beside this script
 
 from geoscaler.io import load_mesh
 from geoscaler.methods.direct import DEFAULT_CONFIG
@@ -28,7 +29,6 @@ from geoscaler.methods.repacked import baked_maps, plan_layout
 from geoscaler.pipeline.downsampling import product_evaluation
 from geoscaler.protocol import PROTOCOL_EVALUATION
 from geoscaler.render.cameras import view_set_cameras
-from geoscaler.render.metrics import psnr_fg
 from geoscaler.render.renderer import Renderer
 from geoscaler.resize.filters import bicubic
 from geoscaler.resize.sizes import SizeRule
@@ -36,13 +36,9 @@ from geoscaler.resize.sizes import SizeRule
 
 def mean_psnr(renderer: Renderer, views: list, textures: list, uvs=None) -> float:
     """Mean PSNR-fg of ``textures`` (uint8, per material) over ``views`` (G-buffer, reference,
-    foreground), rendered on ``uvs`` (None: the mesh's own)."""
-    chains = renderer.mip_textures([None if t is None else t[..., :3] for t in textures])
-    scores = [
-        float(psnr_fg(renderer.render(g, chains, uvs)[None], ref[None], fg[None]))
-        for g, ref, fg in views
-    ]
-    return float(np.mean(scores))
+    foreground), rendered on ``uvs`` (None: the mesh's own): :func:`bake_start.view_scores`'
+    mean."""
+    return float(np.mean(view_scores(renderer, views, textures, uvs)))
 
 
 def main() -> int:

@@ -38,7 +38,7 @@ from geoscaler.methods import MethodOptions, RunContext
 from geoscaler.methods.direct import DEFAULT_CONFIG
 from geoscaler.methods.learned import loop_config
 from geoscaler.methods.registry import output_sizes_for
-from geoscaler.methods.repacked import plan_layout
+from geoscaler.methods.repacked import PlanningViews, plan_layout
 from geoscaler.render.renderer import Renderer
 from geoscaler.report.bench import find_meshes
 from geoscaler.resize.sizes import SizeRule
@@ -50,7 +50,7 @@ from geoscaler.uv.atlas import (
     uv_areas,
     weighted_gain,
 )
-from geoscaler.uv.detail import LostDetail, lost_detail
+from geoscaler.uv.detail import LostDetail
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -91,11 +91,12 @@ def mesh_rows(entry, scales: list[int], device: str) -> list[dict]:
     mesh = load_mesh(entry.path)
     renderer = Renderer(mesh, device)
     config = loop_config(DEFAULT_CONFIG, MethodOptions(device=device), RunContext())
+    views = PlanningViews(renderer, config)  # rendered once, the lost detail measured once
     rows = []
     for scale in scales:
         rule = SizeRule(scale=scale)
-        atlas = plan_layout(mesh, rule, renderer, config)
-        lost = lost_detail(mesh, renderer.reference_maps(), output_sizes_for(mesh, rule, renderer))
+        atlas = plan_layout(mesh, rule, renderer, config, views=views)
+        lost = views.lost_detail(output_sizes_for(mesh, rule, renderer))  # as the plan's
         groups = [group_bounds(mesh, atlas, g, lost) for g in range(len(atlas.groups))]
         if not groups:
             rows.append({"mesh": entry.name, "scale": scale, "kept": atlas.kept})
