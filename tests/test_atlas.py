@@ -395,6 +395,27 @@ def test_charts_larger_than_the_atlas_are_refused_not_shrunk():
         pack(charts, np.ones(1), 32, 2000, rotate=False)
 
 
+def squares(count: int, side: float) -> Charts:
+    """``count`` squares of ``side`` in a row, one chart each."""
+    corners = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float64) * side
+    uvs = np.concatenate([corners + [index * 2 * side, 0] for index in range(count)])
+    faces = np.concatenate([[[4 * i, 4 * i + 1, 4 * i + 2], [4 * i, 4 * i + 2, 4 * i + 3]]
+                            for i in range(count)])  # fmt: skip
+    return Charts(faces, uvs, np.repeat(np.arange(count), 4), count)
+
+
+def test_the_packing_leaves_the_padding_asked_between_charts_not_twice_it():
+    # xatlas pads every chart by its own padding: asked the whole, it left twice the padding
+    # between neighbours, texels the charts could have had
+    charts, padding = squares(16, 0.05), 4
+    packed = pack(charts, np.ones(16), SIZE, padding, rotate=False)
+    chart = charts.corner_chart
+    moved = np.einsum("kij,kj->ki", packed.linear[chart], charts.corner_uvs) + packed.offset[chart]
+    texels, labels = chart_texels(moved[charts.corner_faces], charts.face_chart(), SIZE)
+    assert padding_violations(texels, labels, SIZE, padding) == 0
+    assert padding_violations(texels, labels, SIZE, 2 * padding) > 0  # neighbours closer
+
+
 def test_a_chart_with_a_sliver_face_packs_as_itself_not_as_its_box():
     # a scan's finest faces are under float32's epsilon in UV area (here 5e-8), which xatlas
     # ignores as degenerate: the corner only they use would be left out, the chart boxed

@@ -51,6 +51,12 @@ XATLAS_UNIT = 1024.0
 """xatlas units per scaled UV unit (see the module's note on faces it ignores): large enough
 that only degenerate faces fall under its epsilon, since charts with ignored faces are packed
 as boxes, less densely (see docs/decisions/packing-xatlas-settings.md)."""
+XATLAS_PADDING_SHARE = 0.5
+"""Share of the texels to keep empty between charts asked of xatlas as its padding: it dilates
+every chart by its padding before placing it, so two charts end about twice it apart (asked 5,
+it left 8 to 11 empty texels between the development scans' charts; asked 3, 6 to 8). Its
+``bilinear`` option, one texel more around each chart, is off: the padding already keeps the
+texels a lookup reads apart (see docs/decisions/atlas-padding.md)."""
 PROBES = (1.16, 1.08, 1.04, 1.02)
 """Density steps tried above the bisection's answer: xatlas places charts by a randomised
 heuristic, so whether they fit is not monotone in the density (see
@@ -199,8 +205,11 @@ def _pack_once(
     rotate: bool,
 ) -> np.ndarray | None:
     """``(P, 2)`` packed proxy corners in [0, 1], or None when they need more than one atlas
-    or xatlas left a corner out or split one. xatlas packs into ``size - padding`` texels,
-    centred: with repeat addressing the atlas's border is a seam like any other."""
+    or xatlas left a corner out or split one. About ``padding`` texels are left empty between
+    charts: xatlas pads each chart by its own padding, so it is asked half of it
+    (:data:`XATLAS_PADDING_SHARE`). It packs into ``size - padding`` texels, centred: with
+    repeat addressing the atlas's border is a seam like any other, and xatlas places charts
+    up to its edge."""
     uvs, faces, chart = proxies
     inner = size - padding  # xatlas ignores repeat addressing: keep padding across the border
     atlas = xatlas.Atlas()
@@ -208,9 +217,9 @@ def _pack_once(
     atlas.add_uv_mesh(scaled.astype(np.float32), faces.astype(np.uint32))
     options = xatlas.PackOptions()
     options.resolution, options.texels_per_unit = inner, tpu / XATLAS_UNIT
-    options.padding = padding
+    options.padding = math.ceil(XATLAS_PADDING_SHARE * padding)
     options.rotate_charts, options.rotate_charts_to_axis = rotate, False
-    options.bilinear, options.blockAlign, options.bruteForce = True, False, False
+    options.bilinear, options.blockAlign, options.bruteForce = False, False, False
     atlas.generate(pack_options=options)
     _retire(atlas)
     if atlas.atlas_count != 1 or (atlas.width, atlas.height) != (inner, inner):
